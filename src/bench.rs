@@ -1,0 +1,109 @@
+//! `bench`: every mesh of a corpus through the pipeline, one table row each, plus JSON.
+
+use crate::config::Settings;
+use crate::cook::{Report, cook};
+use crate::mesh::{Format, load_file};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Serialize)]
+pub struct BenchRow {
+    pub mesh: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub report: Option<Report>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// Mesh files directly in `corpus` and one folder down, skipping `broken/` (malformed on purpose).
+pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(corpus)? {
+        let path = entry?.path();
+        if path.is_dir() {
+            if path.file_name().is_some_and(|n| n != "broken") {
+                for inner in std::fs::read_dir(&path)? {
+                    files.push(inner?.path());
+                }
+            }
+        } else {
+            files.push(path);
+        }
+    }
+    files.retain(|p| Format::from_extension(p).is_ok());
+    files.sort();
+    Ok(files)
+}
+
+/// Cooks and evaluates every file, printing a row as each finishes.
+pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
+    println!(
+        "{:<34} {:>7} {:>6} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "mesh",
+        "tris_in",
+        "tris",
+        "boxes",
+        "coverage",
+        "false",
+        "false_nb",
+        "outside",
+        "surf_ms",
+        "inside_ms",
+        "boxes_ms",
+        "cook_ms",
+        "eval_ms"
+    );
+    files
+        .iter()
+        .map(|path| {
+            let name = path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let start = Instant::now();
+            match load_file(path) {
+                Ok((mesh, stats)) => {
+                    let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
+                    let report = cook(mesh, stats, ingest_ms, settings, true).report;
+                    print_row(&name, &report);
+                    BenchRow {
+                        mesh: name,
+                        report: Some(report),
+                        error: None,
+                    }
+                }
+                Err(e) => {
+                    println!("{name:<34} rejected: {e}");
+                    BenchRow {
+                        mesh: name,
+                        report: None,
+                        error: Some(e.to_string()),
+                    }
+                }
+            }
+        })
+        .collect()
+}
+
+fn print_row(name: &str, r: &Report) {
+    let q = r.quality.as_ref().expect("bench always evaluates");
+    let t = &r.timings_ms;
+    let cook_ms = t.total() - t.get("eval");
+    println!(
+        "{:<34} {:>7} {:>6} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
+        name,
+        r.input.triangles,
+        r.occluder.triangles,
+        r.boxes.kept,
+        q.coverage * 100.0,
+        q.false_pixels,
+        q.false_pixels_non_below,
+        q.outside_samples * 100.0,
+        t.get("surface"),
+        t.get("inside"),
+        t.get("boxes") + t.get("refine") + t.get("select+merge"),
+        cook_ms,
+        t.get("eval"),
+    );
+}

@@ -1,0 +1,181 @@
+//! Settings: config/default.toml (built in), then an optional file, then flags. Every key of an
+//! override must exist in the defaults with the same type, and every value is range-checked, so
+//! a typo or a bad value is an error that names the key.
+
+use crate::eval::EvalSettings;
+use crate::voxel::InsideMethod;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use toml::{Table, Value};
+
+pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Settings {
+    pub cook: CookSettings,
+    pub eval: EvalSettings,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CookSettings {
+    pub resolution: usize,
+    pub inside: InsideMethod,
+    pub target_coverage: f64,
+    pub min_box_gain: f64,
+    pub max_boxes: usize,
+    pub min_box_voxels: usize,
+    pub max_triangles: usize,
+    pub min_silhouette_gain: f64,
+    pub refine: bool,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {message}")]
+    Read { path: String, message: String },
+    #[error("unknown setting `{0}`")]
+    UnknownKey(String),
+    #[error("setting `{key}` must be {expected}, got {got}")]
+    WrongType { key: String, expected: String, got: String },
+    #[error("setting `{key}` = {value} is out of range: {range}")]
+    OutOfRange { key: String, value: String, range: String },
+    #[error("invalid setting: {0}")]
+    Invalid(String),
+    #[error("`--set {0}`: expected KEY=VALUE, e.g. cook.resolution=96")]
+    BadAssignment(String),
+}
+
+/// Builds settings from the defaults, an optional TOML file and `key=value` overrides
+/// (keys dotted, e.g. `cook.resolution`).
+pub fn load(file: Option<&Path>, overrides: &[(String, Value)]) -> Result<Settings, ConfigError> {
+    let mut table: Table = DEFAULT_TOML.parse().expect("the built-in defaults parse");
+    let defaults = table.clone();
+    if let Some(path) = file {
+        let read_error = |message: String| ConfigError::Read {
+            path: path.display().to_string(),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| read_error(e.to_string()))?;
+        let file_table: Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| read_error(e.message().to_string()))?;
+        overlay(&mut table, &defaults, file_table, "")?;
+    }
+    for (key, value) in overrides {
+        let mut nested = Table::new();
+        let parts: Vec<&str> = key.split('.').collect();
+        let (last, sections) = parts.split_last().expect("split yields one part");
+        let mut cursor = &mut nested;
+        for s in sections {
+            cursor = cursor
+                .entry(s.to_string())
+                .or_insert_with(|| Value::Table(Table::new()))
+                .as_table_mut()
+                .expect("just inserted a table");
+        }
+        cursor.insert(last.to_string(), value.clone());
+        overlay(&mut table, &defaults, nested, "")?;
+    }
+    let settings: Settings = Value::Table(table)
+        .try_into()
+        .map_err(|e: toml::de::Error| ConfigError::Invalid(e.message().to_string()))?;
+    validate(&settings)?;
+    Ok(settings)
+}
+
+/// Parses `KEY=VALUE`; the value is TOML (`96`, `0.5`, `true`) or else a bare string.
+pub fn parse_assignment(text: &str) -> Result<(String, Value), ConfigError> {
+    let (key, value) = text
+        .split_once('=')
+        .ok_or_else(|| ConfigError::BadAssignment(text.to_string()))?;
+    let value = value.trim();
+    let parsed = format!("v = {value}")
+        .parse::<Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| Value::String(value.to_string()));
+    Ok((key.trim().to_string(), parsed))
+}
+
+fn overlay(target: &mut Table, defaults: &Table, source: Table, prefix: &str) -> Result<(), ConfigError> {
+    for (key, value) in source {
+        let path = if prefix.is_empty() {
+            key.clone()
+        } else {
+            format!("{prefix}.{key}")
+        };
+        let Some(default) = defaults.get(&key) else {
+            return Err(ConfigError::UnknownKey(path));
+        };
+        match (default, value) {
+            (Value::Table(d), Value::Table(s)) => {
+                let t = target
+                    .get_mut(&key)
+                    .and_then(Value::as_table_mut)
+                    .expect("defaults and target share their shape");
+                overlay(t, d, s, &path)?;
+            }
+            // Every integer setting is a count.
+            (Value::Integer(_), Value::Integer(i)) if i < 0 => {
+                return Err(ConfigError::OutOfRange {
+                    key: path,
+                    value: i.to_string(),
+                    range: "expected a count, 0 or more".into(),
+                });
+            }
+            // An integer is a fine float.
+            (Value::Float(_), Value::Integer(i)) => {
+                target.insert(key, Value::Float(i as f64));
+            }
+            (d, v) if std::mem::discriminant(d) == std::mem::discriminant(&v) => {
+                target.insert(key, v);
+            }
+            (d, v) => {
+                return Err(ConfigError::WrongType {
+                    key: path,
+                    expected: describe(d),
+                    got: describe(&v),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+fn describe(v: &Value) -> String {
+    match v {
+        Value::Table(_) => "a table".into(),
+        Value::Array(_) => "an array".into(),
+        other => format!("{} ({other})", other.type_str()),
+    }
+}
+
+fn validate(s: &Settings) -> Result<(), ConfigError> {
+    let c = &s.cook;
+    let e = &s.eval;
+    check("cook.resolution", c.resolution as f64, 4.0, 1024.0)?;
+    check("cook.target_coverage", c.target_coverage, 0.0, 1.0)?;
+    check("cook.min_box_gain", c.min_box_gain, 0.0, 1.0)?;
+    check("cook.max_boxes", c.max_boxes as f64, 0.0, 100_000.0)?;
+    check("cook.min_box_voxels", c.min_box_voxels as f64, 1.0, 1e12)?;
+    check("cook.max_triangles", c.max_triangles as f64, 0.0, 1e9)?;
+    check("cook.min_silhouette_gain", c.min_silhouette_gain, 0.0, 1.0)?;
+    check("eval.views", e.views as f64, 1.0, 4096.0)?;
+    check("eval.pixels", e.pixels as f64, 16.0, 4096.0)?;
+    check("eval.outside_samples", e.outside_samples as f64, 0.0, 10_000_000.0)?;
+    Ok(())
+}
+
+fn check(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {
+    if value.is_finite() && value >= lo && value <= hi {
+        Ok(())
+    } else {
+        Err(ConfigError::OutOfRange {
+            key: key.to_string(),
+            value: value.to_string(),
+            range: format!("expected {lo} to {hi}"),
+        })
+    }
+}

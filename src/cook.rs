@@ -1,0 +1,235 @@
+//! One mesh through the whole pipeline: orient, voxelize, classify, expand boxes, refine,
+//! select by silhouette, merge, and optionally evaluate.
+
+use crate::config::Settings;
+use crate::eval::{Quality, evaluate};
+use crate::key::{PIPELINE_VERSION, cache_key};
+use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_components};
+use crate::occluder::{WorldBox, boxes, exposure::OpenViews, refine, select};
+use crate::voxel::{self, Grid, surface};
+use serde::Serialize;
+use std::time::Instant;
+
+/// How long each stage took, in milliseconds, in pipeline order.
+#[derive(Clone, Debug, Default)]
+pub struct Timings(pub Vec<(String, f64)>);
+
+impl Serialize for Timings {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(Some(self.0.len()))?;
+        for (stage, ms) in &self.0 {
+            map.serialize_entry(stage, ms)?;
+        }
+        map.end()
+    }
+}
+
+impl Timings {
+    fn time<T>(&mut self, stage: &str, f: impl FnOnce() -> T) -> T {
+        let start = Instant::now();
+        let out = f();
+        self.0.push((stage.to_string(), start.elapsed().as_secs_f64() * 1e3));
+        out
+    }
+
+    pub fn total(&self) -> f64 {
+        self.0.iter().map(|(_, ms)| ms).sum()
+    }
+
+    pub fn get(&self, stage: &str) -> f64 {
+        self.0.iter().filter(|(s, _)| s == stage).map(|(_, ms)| ms).sum()
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub pipeline_version: &'static str,
+    pub key: String,
+    pub input: InputReport,
+    pub grid: Grid,
+    pub voxels: VoxelReport,
+    pub boxes: BoxReport,
+    pub occluder: OccluderReport,
+    /// The device that ran the pipeline.
+    pub device: String,
+    pub timings_ms: Timings,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quality: Option<Quality>,
+    /// Why the occluder is empty or smaller than asked, in words.
+    pub notes: Vec<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct InputReport {
+    #[serde(flatten)]
+    pub ingest: IngestStats,
+    pub triangles: usize,
+    #[serde(flatten)]
+    pub topology: Topology,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct VoxelReport {
+    pub surface: usize,
+    pub solid: usize,
+    pub inner: usize,
+    /// Inner voxels left out because they show through an opening (open meshes only).
+    pub exposed: usize,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct BoxReport {
+    pub candidates: usize,
+    /// Candidates rejected because they show through an opening (open meshes only).
+    pub exposed: usize,
+    pub kept: usize,
+    /// Share of the inner voxels that the kept boxes fill.
+    pub inner_volume_covered: f64,
+    /// Silhouette share each kept box added when it was chosen.
+    pub silhouette_gains: Vec<f64>,
+    pub kept_boxes: Vec<WorldBox>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct OccluderReport {
+    pub triangles: usize,
+    pub vertices: usize,
+}
+
+pub struct Cooked {
+    pub occluder: Mesh,
+    pub report: Report,
+}
+
+/// Cooks an ingested mesh. `ingest_ms` is the time the caller spent reading it.
+pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Settings, with_eval: bool) -> Cooked {
+    let cook = &settings.cook;
+    let mut timings = Timings(vec![("ingest".into(), ingest_ms)]);
+    let key = timings.time("key", || cache_key(&mesh, cook));
+    let topology = timings.time("orient", || orient_closed_components(&mut mesh));
+    let (lo, hi) = mesh.bounds();
+    let grid = Grid::fit(lo, hi, cook.resolution);
+    let surface = timings.time("surface", || surface::voxelize(&mesh, &grid));
+    let solid = timings.time("inside", || voxel::classify(cook.inside, &mesh, &topology, &grid));
+    let mut inner: Vec<bool> = timings.time("inner", || {
+        solid.iter().zip(&surface.voxels).map(|(&s, &t)| s && !t).collect()
+    });
+    // Only open meshes can show their inside.
+    let open_views = (!topology.boundary.is_empty()).then(|| timings.time("exposure", || OpenViews::new(&mesh)));
+    let exposed_voxels = match &open_views {
+        None => 0,
+        Some(views) => timings.time("exposure", || views.remove_exposed(&grid, &mut inner)),
+    };
+    let inner_count = inner.iter().filter(|&&v| v).count();
+    let expansion = boxes::ExpansionSettings {
+        target_coverage: cook.target_coverage,
+        min_box_gain: cook.min_box_gain,
+        max_boxes: cook.max_boxes,
+        min_box_voxels: cook.min_box_voxels,
+    };
+    let voxel_boxes = timings.time("boxes", || boxes::expand(&inner, grid.dims, &expansion));
+    let mut candidates: Vec<WorldBox> = timings.time("refine", || {
+        let mut owner = vec![u32::MAX; grid.len()];
+        for (id, b) in voxel_boxes.iter().enumerate() {
+            for x in b.lo[0]..b.hi[0] {
+                for y in b.lo[1]..b.hi[1] {
+                    owner[grid.index(x, y, b.lo[2])..grid.index(x, y, b.hi[2])].fill(id as u32);
+                }
+            }
+        }
+        let input = refine::RefineInput {
+            mesh: &mesh,
+            grid: &grid,
+            surface: &surface,
+            solid: &solid,
+            owner: &owner,
+        };
+        voxel_boxes
+            .iter()
+            .enumerate()
+            .map(|(id, b)| {
+                if cook.refine {
+                    refine::refine(&input, id as u32, b)
+                } else {
+                    let w = |v: [usize; 3]| grid.to_world(glam::DVec3::from_array(v.map(|c| c as f64))).to_array();
+                    WorldBox {
+                        lo: w(b.lo),
+                        hi: w(b.hi),
+                    }
+                }
+            })
+            .collect()
+    });
+    let exposed_boxes = match &open_views {
+        None => 0,
+        Some(views) => timings.time("exposure", || {
+            let before = candidates.len();
+            candidates.retain(|b| views.hides(b));
+            before - candidates.len()
+        }),
+    };
+    // Selection merges as it goes; its last merge is the occluder.
+    let selection = timings.time("select+merge", || {
+        select::select(&mesh, &candidates, cook.max_triangles, cook.min_silhouette_gain)
+    });
+    let occluder = selection.occluder;
+    let kept = selection.chosen;
+    let mut notes = Vec::new();
+    if exposed_voxels + exposed_boxes > 0 {
+        notes.push(format!(
+            "left out {exposed_voxels} voxels and {exposed_boxes} boxes that show through an opening from above the horizon"
+        ));
+    }
+    if inner_count == 0 {
+        notes.push(format!(
+            "no inner voxels at resolution {}: the mesh encloses no volume thicker than a voxel, so no box fits",
+            cook.resolution
+        ));
+    } else if kept.is_empty() {
+        notes.push("no box added enough silhouette within the triangle budget".into());
+    }
+    let quality = with_eval.then(|| {
+        timings.time("eval", || {
+            evaluate(&mesh, &topology.boundary, &occluder, &settings.eval)
+        })
+    });
+    let kept_voxels: usize = kept.iter().map(|&i| voxel_boxes[i].voxels()).sum();
+    let report = Report {
+        pipeline_version: PIPELINE_VERSION,
+        key,
+        input: InputReport {
+            triangles: mesh.triangles.len(),
+            ingest,
+            topology,
+        },
+        voxels: VoxelReport {
+            surface: surface.voxels.iter().filter(|&&v| v).count(),
+            solid: solid.iter().filter(|&&v| v).count(),
+            inner: inner_count,
+            exposed: exposed_voxels,
+        },
+        grid,
+        boxes: BoxReport {
+            candidates: candidates.len() + exposed_boxes,
+            exposed: exposed_boxes,
+            kept: kept.len(),
+            inner_volume_covered: if inner_count > 0 {
+                kept_voxels as f64 / inner_count as f64
+            } else {
+                0.0
+            },
+            silhouette_gains: selection.gains,
+            kept_boxes: kept.iter().map(|&i| candidates[i]).collect(),
+        },
+        occluder: OccluderReport {
+            triangles: occluder.triangles.len(),
+            vertices: occluder.positions.len(),
+        },
+        device: "cpu".into(),
+        timings_ms: timings,
+        quality,
+        notes,
+    };
+    Cooked { occluder, report }
+}

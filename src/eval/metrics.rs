@@ -1,0 +1,118 @@
+//! Coverage, false pixels and outside samples, as DESIGN.md defines them.
+
+use super::raster::{View, depth_image};
+use super::views::fibonacci_sphere;
+use crate::mesh::{BoundaryEdge, Mesh};
+use crate::voxel::winding::WindingField;
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvalSettings {
+    /// View directions on a Fibonacci sphere.
+    pub views: usize,
+    /// Image width and height in pixels.
+    pub pixels: usize,
+    /// Points sampled on the occluder's surface for the outside test.
+    pub outside_samples: usize,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Quality {
+    /// Mean over views of |occluder ∩ original| / |original| pixels.
+    pub coverage: f64,
+    pub coverage_min: f64,
+    /// Pixels where the occluder would hide something visible, over all views.
+    pub false_pixels: u64,
+    /// The same over the views whose camera is not below the object (y up).
+    pub false_pixels_non_below: u64,
+    pub views: usize,
+    pub views_non_below: usize,
+    /// Share of points sampled on the occluder where the original's winding number is < 0.5.
+    pub outside_samples: f64,
+    pub samples: usize,
+    pub occluder_triangles: usize,
+    /// The view direction (towards the camera) with the most false pixels, if any has some.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub worst_view: Option<([f64; 3], u64)>,
+}
+
+/// Judges `occluder` against `original`; `boundary` is the original's open boundary.
+pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, settings: &EvalSettings) -> Quality {
+    let (center, radius) = original.bounding_sphere();
+    let directions = fibonacci_sphere(settings.views);
+    let per_view: Vec<(f64, u64, bool, DVec3)> = directions
+        .par_iter()
+        .map(|&dir| {
+            let view = View::new(dir, center, radius, settings.pixels);
+            let m = depth_image(&view, original.triangles_f64());
+            let o = depth_image(&view, occluder.triangles_f64());
+            let tolerance = view.depth_tolerance() as f32;
+            let (mut both, mut seen, mut false_pixels) = (0u64, 0u64, 0u64);
+            for (dm, d_o) in m.iter().zip(&o) {
+                seen += u64::from(dm.is_finite());
+                if d_o.is_finite() {
+                    if dm.is_finite() {
+                        both += 1;
+                    }
+                    false_pixels += u64::from(!dm.is_finite() || *d_o < dm - tolerance);
+                }
+            }
+            let coverage = if seen > 0 { both as f64 / seen as f64 } else { 1.0 };
+            (coverage, false_pixels, dir.y >= 0.0, dir)
+        })
+        .collect();
+    let n = per_view.len().max(1) as f64;
+    let samples = sample_surface(occluder, settings.outside_samples);
+    let field = WindingField::new(original, boundary);
+    let outside = samples.par_iter().filter(|&&p| field.winding(p) < 0.5).count();
+    Quality {
+        coverage: per_view.iter().map(|v| v.0).sum::<f64>() / n,
+        coverage_min: per_view.iter().map(|v| v.0).fold(1.0, f64::min),
+        false_pixels: per_view.iter().map(|v| v.1).sum(),
+        false_pixels_non_below: per_view.iter().filter(|v| v.2).map(|v| v.1).sum(),
+        views: per_view.len(),
+        views_non_below: per_view.iter().filter(|v| v.2).count(),
+        outside_samples: if samples.is_empty() {
+            0.0
+        } else {
+            outside as f64 / samples.len() as f64
+        },
+        samples: samples.len(),
+        occluder_triangles: occluder.triangles.len(),
+        worst_view: per_view
+            .iter()
+            .filter(|v| v.1 > 0)
+            .max_by_key(|v| v.1)
+            .map(|v| (v.3.to_array(), v.1)),
+    }
+}
+
+/// `n` points spread over the mesh's surface by area, from a fixed seed.
+fn sample_surface(mesh: &Mesh, n: usize) -> Vec<DVec3> {
+    let areas: Vec<f64> = mesh
+        .triangles_f64()
+        .map(|[a, b, c]| (b - a).cross(c - a).length() * 0.5)
+        .scan(0.0, |sum, a| {
+            *sum += a;
+            Some(*sum)
+        })
+        .collect();
+    let Some(&total) = areas.last() else {
+        return Vec::new();
+    };
+    let mut rng = fastrand::Rng::with_seed(0x5eed);
+    (0..n)
+        .map(|_| {
+            let t = areas.partition_point(|&c| c < rng.f64() * total).min(areas.len() - 1);
+            let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+            let (mut u, mut v) = (rng.f64(), rng.f64());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            a + (b - a) * u + (c - a) * v
+        })
+        .collect()
+}

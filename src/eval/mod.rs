@@ -1,0 +1,8 @@
+//! Quality figures of an occluder against its original (see DESIGN.md): coverage, false pixels,
+//! outside samples, triangles.
+
+pub mod metrics;
+pub mod raster;
+pub mod views;
+
+pub use metrics::{EvalSettings, Quality, evaluate};

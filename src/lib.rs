@@ -1,0 +1,14 @@
+//! occluder-cook: conservative occluders for game meshes.
+//!
+//! The pipeline, one module per stage: [`mesh`] (ingest, weld, export), [`voxel`] (surface and
+//! inside/outside), [`occluder`] (boxes, refinement, selection, merge), [`eval`] (quality
+//! figures), tied together by [`cook`].
+
+pub mod bench;
+pub mod config;
+pub mod cook;
+pub mod eval;
+pub mod key;
+pub mod mesh;
+pub mod occluder;
+pub mod voxel;

@@ -1,0 +1,148 @@
+//! glTF 2.0 (.gltf and .glb): every triangle primitive of the default scene, in world space.
+
+use super::{IngestError, RawMesh};
+use base64::Engine;
+use glam::{Mat4, Vec3};
+use gltf::mesh::Mode;
+use std::path::Path;
+
+const FORMAT: &str = "glTF";
+
+pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| IngestError::malformed(FORMAT, e.to_string()))?;
+    let buffers = load_buffers(&gltf, base_dir)?;
+    let scene = gltf
+        .default_scene()
+        .or_else(|| gltf.scenes().next())
+        .ok_or_else(|| IngestError::malformed(FORMAT, "the file has no scene"))?;
+    let mut raw = RawMesh::default();
+    let mut path = Vec::new();
+    for node in scene.nodes() {
+        visit(&node, Mat4::IDENTITY, &buffers, &mut path, &mut raw)?;
+    }
+    Ok(raw)
+}
+
+fn load_buffers(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<Vec<Vec<u8>>, IngestError> {
+    gltf.buffers()
+        .map(|buffer| {
+            let data = match buffer.source() {
+                gltf::buffer::Source::Bin => gltf
+                    .blob
+                    .clone()
+                    .ok_or_else(|| IngestError::malformed(FORMAT, "the GLB has no binary chunk"))?,
+                gltf::buffer::Source::Uri(uri) => read_uri(uri, base_dir)?,
+            };
+            if data.len() < buffer.length() {
+                return Err(IngestError::malformed(
+                    FORMAT,
+                    format!(
+                        "buffer {} holds {} bytes but declares {} (truncated file?)",
+                        buffer.index(),
+                        data.len(),
+                        buffer.length()
+                    ),
+                ));
+            }
+            Ok(data)
+        })
+        .collect()
+}
+
+fn read_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, IngestError> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let (_, payload) = rest
+            .split_once(";base64,")
+            .ok_or_else(|| IngestError::malformed(FORMAT, "data URI is not base64"))?;
+        return base64::engine::general_purpose::STANDARD
+            .decode(payload)
+            .map_err(|e| IngestError::malformed(FORMAT, format!("bad base64 in data URI: {e}")));
+    }
+    let dir = base_dir.ok_or_else(|| {
+        IngestError::malformed(
+            FORMAT,
+            format!("external buffer '{uri}' cannot be resolved: send a .glb or embed buffers as data URIs"),
+        )
+    })?;
+    let decoded =
+        urlencoding::decode(uri).map_err(|e| IngestError::malformed(FORMAT, format!("bad buffer URI '{uri}': {e}")))?;
+    let relative = Path::new(decoded.as_ref());
+    if relative.is_absolute() || relative.components().any(|c| c == std::path::Component::ParentDir) {
+        return Err(IngestError::malformed(
+            FORMAT,
+            format!("buffer URI '{uri}' leaves the file's folder"),
+        ));
+    }
+    let path = dir.join(relative);
+    std::fs::read(&path).map_err(|source| IngestError::Io {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
+fn visit(
+    node: &gltf::Node,
+    parent: Mat4,
+    buffers: &[Vec<u8>],
+    path: &mut Vec<usize>,
+    raw: &mut RawMesh,
+) -> Result<(), IngestError> {
+    if path.contains(&node.index()) {
+        return Err(IngestError::NodeCycle(node.index()));
+    }
+    let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+    if let Some(mesh) = node.mesh() {
+        for primitive in mesh.primitives() {
+            read_primitive(&primitive, world, buffers, raw)?;
+        }
+    }
+    path.push(node.index());
+    for child in node.children() {
+        visit(&child, world, buffers, path, raw)?;
+    }
+    path.pop();
+    Ok(())
+}
+
+fn read_primitive(
+    primitive: &gltf::Primitive,
+    world: Mat4,
+    buffers: &[Vec<u8>],
+    raw: &mut RawMesh,
+) -> Result<(), IngestError> {
+    let mode = primitive.mode();
+    if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+        raw.skipped_primitives += 1;
+        raw.warnings
+            .push(format!("skipped a {mode:?} primitive: only triangles have a surface"));
+        return Ok(());
+    }
+    let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+    let out_of_buffer = || IngestError::malformed(FORMAT, "an accessor reaches past the end of its buffer");
+    let positions: Vec<Vec3> = reader
+        .read_positions()
+        .ok_or_else(out_of_buffer)?
+        .map(|p| world.transform_point3(Vec3::from(p)))
+        .collect();
+    let indices: Vec<u64> = match reader.read_indices() {
+        Some(indices) => indices.into_u32().map(u64::from).collect(),
+        None if primitive.indices().is_some() => return Err(out_of_buffer()),
+        None => (0..positions.len() as u64).collect(),
+    };
+    // A mirroring transform flips the winding; keep faces facing the way they were authored.
+    let flip = world.determinant() < 0.0;
+    let ordered = |[a, b, c]: [u64; 3]| if flip { [a, c, b] } else { [a, b, c] };
+    let triangles: Vec<[u64; 3]> = match mode {
+        Mode::Triangles => indices.chunks_exact(3).map(|t| ordered([t[0], t[1], t[2]])).collect(),
+        Mode::TriangleStrip => (2..indices.len())
+            .map(|i| {
+                let (a, b, c) = (indices[i - 2], indices[i - 1], indices[i]);
+                ordered(if i % 2 == 0 { [a, b, c] } else { [b, a, c] })
+            })
+            .collect(),
+        _ => (2..indices.len())
+            .map(|i| ordered([indices[0], indices[i - 1], indices[i]]))
+            .collect(),
+    };
+    raw.append(&positions, triangles)
+}

@@ -1,0 +1,241 @@
+//! Meshes in flat arrays: ingest from glTF/GLB, OBJ and STL, welding, validation and GLB export.
+
+pub mod glb;
+mod gltf_in;
+mod obj;
+mod stl;
+pub mod topology;
+
+use glam::Vec3;
+use serde::Serialize;
+use std::path::Path;
+
+pub use topology::{BoundaryEdge, Topology};
+
+/// World-space triangles over welded vertices.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    pub positions: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// A mesh file's container format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Gltf,
+    Obj,
+    Stl,
+}
+
+impl Format {
+    /// The format named by a file extension (`glb`, `gltf`, `obj`, `stl`).
+    pub fn from_extension(path: &Path) -> Result<Format, IngestError> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        match ext.as_str() {
+            "glb" | "gltf" => Ok(Format::Gltf),
+            "obj" => Ok(Format::Obj),
+            "stl" => Ok(Format::Stl),
+            _ => Err(IngestError::UnknownFormat(path.display().to_string())),
+        }
+    }
+}
+
+/// Why a mesh file was rejected. Each message is one line naming the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum IngestError {
+    #[error("cannot read {path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("unknown mesh format for {0}: expected .glb, .gltf, .obj or .stl")]
+    UnknownFormat(String),
+    #[error("malformed {format} file: {message}")]
+    Malformed { format: &'static str, message: String },
+    #[error("non-finite vertex coordinate ({0}) in vertex {1}")]
+    NonFinite(String, usize),
+    #[error("vertex index {index} out of range: the primitive has {count} vertices")]
+    IndexOutOfRange { index: u64, count: usize },
+    #[error("the scene graph has a cycle through node {0}")]
+    NodeCycle(usize),
+    #[error("the mesh has no triangles{0}")]
+    Empty(String),
+}
+
+impl IngestError {
+    pub(crate) fn malformed(format: &'static str, message: impl Into<String>) -> Self {
+        IngestError::Malformed {
+            format,
+            message: message.into(),
+        }
+    }
+}
+
+/// What ingest saw, for the report.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct IngestStats {
+    pub input_triangles: usize,
+    pub input_vertices: usize,
+    pub welded_vertices: usize,
+    pub degenerate_triangles: usize,
+    /// Points, lines and line strips are not surfaces; they are skipped.
+    pub skipped_primitives: usize,
+    pub warnings: Vec<String>,
+}
+
+/// Triangles as read from a file, before welding.
+#[derive(Default)]
+pub(crate) struct RawMesh {
+    pub positions: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+    pub skipped_primitives: usize,
+    pub warnings: Vec<String>,
+}
+
+impl RawMesh {
+    /// Appends a primitive whose indices refer to `positions`, checking every index.
+    pub fn append(
+        &mut self,
+        positions: &[Vec3],
+        triangles: impl IntoIterator<Item = [u64; 3]>,
+    ) -> Result<(), IngestError> {
+        let base = self.positions.len() as u64;
+        for tri in triangles {
+            for &i in &tri {
+                if i >= positions.len() as u64 {
+                    return Err(IngestError::IndexOutOfRange {
+                        index: i,
+                        count: positions.len(),
+                    });
+                }
+            }
+            self.triangles
+                .push(tri.map(|i| u32::try_from(base + i).expect("vertex count fits u32")));
+        }
+        self.positions.extend_from_slice(positions);
+        Ok(())
+    }
+}
+
+/// Reads a mesh file; `.gltf` files may reference buffers beside them.
+pub fn load_file(path: &Path) -> Result<(Mesh, IngestStats), IngestError> {
+    let format = Format::from_extension(path)?;
+    let bytes = std::fs::read(path).map_err(|source| IngestError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    load_bytes(&bytes, format, path.parent())
+}
+
+/// Parses a mesh from memory. `base_dir` resolves external glTF buffers; without it only
+/// embedded buffers are allowed.
+pub fn load_bytes(bytes: &[u8], format: Format, base_dir: Option<&Path>) -> Result<(Mesh, IngestStats), IngestError> {
+    let raw = match format {
+        Format::Gltf => gltf_in::read(bytes, base_dir)?,
+        Format::Obj => obj::read(bytes)?,
+        Format::Stl => stl::read(bytes)?,
+    };
+    for warning in &raw.warnings {
+        tracing::warn!("{warning}");
+    }
+    weld(raw)
+}
+
+/// Welds vertices with identical positions, drops degenerate triangles, and validates.
+fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
+    if let Some((i, p)) = raw.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+        return Err(IngestError::NonFinite(format!("{}, {}, {}", p.x, p.y, p.z), i));
+    }
+    let mut stats = IngestStats {
+        input_triangles: raw.triangles.len(),
+        input_vertices: raw.positions.len(),
+        skipped_primitives: raw.skipped_primitives,
+        warnings: raw.warnings,
+        ..Default::default()
+    };
+    // -0.0 and 0.0 are the same position.
+    let key = |p: Vec3| (p + Vec3::ZERO).to_array().map(f32::to_bits);
+    let mut remap = Vec::with_capacity(raw.positions.len());
+    let mut index_of = std::collections::HashMap::with_capacity(raw.positions.len());
+    let mut positions = Vec::new();
+    for &p in &raw.positions {
+        let next = positions.len() as u32;
+        let index = *index_of.entry(key(p)).or_insert(next);
+        if index == next {
+            positions.push(p);
+        }
+        remap.push(index);
+    }
+    let mut triangles = Vec::with_capacity(raw.triangles.len());
+    for tri in &raw.triangles {
+        let t = tri.map(|i| remap[i as usize]);
+        let [a, b, c] = t.map(|i| positions[i as usize].as_dvec3());
+        if (b - a).cross(c - a) == glam::DVec3::ZERO {
+            stats.degenerate_triangles += 1;
+        } else {
+            triangles.push(t);
+        }
+    }
+    if triangles.is_empty() {
+        let why = if stats.input_triangles == 0 {
+            String::new()
+        } else {
+            format!(": all {} triangles are degenerate", stats.input_triangles)
+        };
+        return Err(IngestError::Empty(why));
+    }
+    // Keep only referenced vertices so that vertex counts mean something.
+    let mut used = vec![u32::MAX; positions.len()];
+    let mut compact = Vec::new();
+    for t in &mut triangles {
+        for i in t.iter_mut() {
+            if used[*i as usize] == u32::MAX {
+                used[*i as usize] = compact.len() as u32;
+                compact.push(positions[*i as usize]);
+            }
+            *i = used[*i as usize];
+        }
+    }
+    stats.welded_vertices = compact.len();
+    Ok((
+        Mesh {
+            positions: compact,
+            triangles,
+        },
+        stats,
+    ))
+}
+
+impl Mesh {
+    /// Axis-aligned bounds (min, max).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.positions
+            .iter()
+            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), &p| {
+                (lo.min(p), hi.max(p))
+            })
+    }
+
+    /// A sphere around the bounds' centre that holds every vertex.
+    pub fn bounding_sphere(&self) -> (glam::DVec3, f64) {
+        let (lo, hi) = self.bounds();
+        let center = ((lo + hi) * 0.5).as_dvec3();
+        let radius = self
+            .positions
+            .iter()
+            .map(|p| p.as_dvec3().distance(center))
+            .fold(0.0, f64::max);
+        (center, radius)
+    }
+
+    /// Every triangle's corners in double precision.
+    pub fn triangles_f64(&self) -> impl Iterator<Item = [glam::DVec3; 3]> + '_ {
+        (0..self.triangles.len()).map(|t| self.corners(t).map(|p| p.as_dvec3()))
+    }
+
+    /// The three corners of triangle `t`.
+    pub fn corners(&self, t: usize) -> [Vec3; 3] {
+        self.triangles[t].map(|i| self.positions[i as usize])
+    }
+}

@@ -1,0 +1,34 @@
+//! Wavefront OBJ through tobj: every group and object, polygons fan-triangulated.
+
+use super::{IngestError, RawMesh};
+use glam::Vec3;
+
+pub fn read(bytes: &[u8]) -> Result<RawMesh, IngestError> {
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+        ..Default::default()
+    };
+    let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &options, |_| {
+        // Materials do not change geometry.
+        Ok(Default::default())
+    })
+    .map_err(|e| IngestError::malformed("OBJ", e.to_string()))?;
+    let mut raw = RawMesh::default();
+    for model in &models {
+        let positions: Vec<Vec3> = model
+            .mesh
+            .positions
+            .chunks_exact(3)
+            .map(|p| Vec3::new(p[0], p[1], p[2]))
+            .collect();
+        let triangles = model
+            .mesh
+            .indices
+            .chunks_exact(3)
+            .map(|t| [t[0], t[1], t[2]].map(u64::from));
+        raw.append(&positions, triangles)?;
+    }
+    Ok(raw)
+}

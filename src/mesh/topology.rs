@@ -1,0 +1,126 @@
+//! Edge and component structure: the open boundary that the winding number corrects for, and the
+//! orientation of closed parts.
+
+use super::Mesh;
+use serde::Serialize;
+use std::collections::HashMap;
+
+/// An edge of the surface's boundary chain: `weight` copies of the directed edge `a → b`.
+/// Edges of a consistently oriented closed surface cancel and never appear.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoundaryEdge {
+    pub a: u32,
+    pub b: u32,
+    pub weight: i32,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Topology {
+    /// Edges used by exactly one triangle (holes, open bottoms).
+    pub boundary_edges: usize,
+    /// Edges used by three or more triangles.
+    pub non_manifold_edges: usize,
+    pub components: usize,
+    pub closed_components: usize,
+    /// Closed components whose faces pointed inwards; they were turned outwards.
+    pub inverted_components: usize,
+    #[serde(skip)]
+    pub boundary: Vec<BoundaryEdge>,
+}
+
+/// Turns inverted closed components outwards in place and returns the topology of the result.
+pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
+    let component = components(mesh);
+    let count = component.iter().copied().max().map_or(0, |m| m as usize + 1);
+    let mut open = vec![false; count];
+    let mut volume = vec![0.0f64; count];
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+        volume[component[tri[0] as usize] as usize] += a.dot(b.cross(c));
+    }
+    let edges = edge_uses(mesh);
+    for (&(a, _), uses) in &edges {
+        if uses.net != 0 {
+            open[component[a as usize] as usize] = true;
+        }
+    }
+    let inverted: Vec<bool> = (0..count).map(|c| !open[c] && volume[c] < 0.0).collect();
+    for tri in &mut mesh.triangles {
+        if inverted[component[tri[0] as usize] as usize] {
+            tri.swap(1, 2);
+        }
+    }
+    let mut topology = Topology {
+        components: count,
+        closed_components: open.iter().filter(|o| !**o).count(),
+        inverted_components: inverted.iter().filter(|i| **i).count(),
+        ..Default::default()
+    };
+    for (&(a, b), uses) in &edges {
+        let net = if inverted[component[a as usize] as usize] {
+            -uses.net
+        } else {
+            uses.net
+        };
+        topology.boundary_edges += usize::from(uses.total == 1);
+        topology.non_manifold_edges += usize::from(uses.total > 2);
+        if net != 0 {
+            topology.boundary.push(BoundaryEdge { a, b, weight: net });
+        }
+    }
+    // HashMap order is random; a fixed order keeps floating-point sums reproducible.
+    topology.boundary.sort_by_key(|e| (e.a, e.b));
+    topology
+}
+
+struct EdgeUses {
+    /// Uses as `a → b` minus uses as `b → a`, for the key `(a, b)` with `a < b`.
+    net: i32,
+    total: u32,
+}
+
+fn edge_uses(mesh: &Mesh) -> HashMap<(u32, u32), EdgeUses> {
+    let mut edges: HashMap<(u32, u32), EdgeUses> = HashMap::with_capacity(mesh.triangles.len() * 3 / 2);
+    for tri in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            let (key, sign) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
+            let e = edges.entry(key).or_insert(EdgeUses { net: 0, total: 0 });
+            e.net += sign;
+            e.total += 1;
+        }
+    }
+    edges
+}
+
+/// Connected components over shared vertices, numbered densely from 0, one entry per vertex.
+fn components(mesh: &Mesh) -> Vec<u32> {
+    let mut parent: Vec<u32> = (0..mesh.positions.len() as u32).collect();
+    fn root(parent: &mut [u32], mut x: u32) -> u32 {
+        while parent[x as usize] != x {
+            parent[x as usize] = parent[parent[x as usize] as usize];
+            x = parent[x as usize];
+        }
+        x
+    }
+    for tri in &mesh.triangles {
+        for k in 1..3 {
+            let (ra, rb) = (root(&mut parent, tri[0]), root(&mut parent, tri[k]));
+            if ra != rb {
+                parent[ra.max(rb) as usize] = ra.min(rb);
+            }
+        }
+    }
+    let mut label = vec![u32::MAX; parent.len()];
+    let mut next = 0;
+    (0..parent.len() as u32)
+        .map(|v| {
+            let r = root(&mut parent, v) as usize;
+            if label[r] == u32::MAX {
+                label[r] = next;
+                next += 1;
+            }
+            label[r]
+        })
+        .collect()
+}

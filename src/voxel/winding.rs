@@ -1,0 +1,147 @@
+//! The generalized winding number (Jacobson et al. 2013), w(p) = Σ solid angle / 4π, and the
+//! inside test w ≥ 0.5.
+//!
+//! Summing every triangle's solid angle at every voxel costs voxels × triangles. Instead, close
+//! the surface with a curtain swept from its open boundary straight down to infinity. The upward
+//! ray from p never meets that curtain, so for the closed surface w is the signed count of
+//! crossings above p, and the open surface's w is that count plus the curtain's solid angle,
+//! which needs only the boundary edges:
+//!
+//! w(p) = Σ_{crossings above p} sign + 1/4π Σ_{boundary edges a→b} Ω(a − p, b − p, −z)
+//!
+//! Closed meshes have no boundary edges and cost one column pass.
+
+use super::{Grid, columns::ColumnCrossings, columns::column_hit};
+use crate::mesh::{BoundaryEdge, Mesh};
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -> Vec<bool> {
+    let mut inside = vec![false; grid.len()];
+    let ny = grid.dims[1];
+    inside.par_chunks_mut(grid.dims[2]).enumerate().for_each(|(c, column)| {
+        for (z, (count, _)) in crossings.above(grid, c).enumerate() {
+            let p = grid.center(c / ny, c % ny, z);
+            column[z] = f64::from(count) + boundary_term(mesh, boundary, p) >= 0.5;
+        }
+    });
+    inside
+}
+
+/// The solid angle of the triangle (a, b, c) seen from the origin (Van Oosterom & Strackee),
+/// positive when the triangle winds counter-clockwise as seen from the origin's far side.
+pub fn solid_angle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    let (la, lb, lc) = (a.length(), b.length(), c.length());
+    let numerator = a.dot(b.cross(c));
+    let denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+    2.0 * numerator.atan2(denominator)
+}
+
+/// The curtain's share of w(p), from the open boundary alone.
+pub fn boundary_term(mesh: &Mesh, boundary: &[BoundaryEdge], p: DVec3) -> f64 {
+    let sum: f64 = boundary
+        .iter()
+        .map(|e| {
+            let a = mesh.positions[e.a as usize].as_dvec3() - p;
+            let b = mesh.positions[e.b as usize].as_dvec3() - p;
+            f64::from(e.weight) * solid_angle(a, b, DVec3::NEG_Z)
+        })
+        .sum();
+    sum / (4.0 * PI)
+}
+
+/// w(p) by its definition, summing every triangle: the reference the fast forms are tested on.
+pub fn direct(mesh: &Mesh, p: DVec3) -> f64 {
+    let sum: f64 = (0..mesh.triangles.len())
+        .map(|t| {
+            let [a, b, c] = mesh.corners(t).map(|v| v.as_dvec3() - p);
+            solid_angle(a, b, c)
+        })
+        .sum();
+    sum / (4.0 * PI)
+}
+
+/// w at arbitrary points: triangles bucketed by their xy footprint, so that a query tests only
+/// the triangles above and below it.
+pub struct WindingField<'a> {
+    mesh: &'a Mesh,
+    boundary: &'a [BoundaryEdge],
+    lo: DVec2,
+    cell: f64,
+    dims: [usize; 2],
+    offsets: Vec<usize>,
+    triangles: Vec<u32>,
+}
+
+impl<'a> WindingField<'a> {
+    pub fn new(mesh: &'a Mesh, boundary: &'a [BoundaryEdge]) -> WindingField<'a> {
+        let (lo, hi) = mesh.bounds();
+        let (lo, hi) = (lo.as_dvec3().truncate(), hi.as_dvec3().truncate());
+        let extent = (hi - lo).max(DVec2::splat(1e-9));
+        // About four triangles per bucket on a surface spread over the footprint.
+        let cells = ((mesh.triangles.len() as f64 / 4.0).sqrt().ceil() as usize).clamp(1, 1024);
+        let cell = extent.max_element() / cells as f64;
+        let dims = [
+            (extent.x / cell).ceil() as usize + 1,
+            (extent.y / cell).ceil() as usize + 1,
+        ];
+        let range = |t: usize| {
+            let tri = mesh.corners(t).map(|v| v.as_dvec3().truncate());
+            let a = ((tri[0].min(tri[1]).min(tri[2]) - lo) / cell).floor();
+            let b = ((tri[0].max(tri[1]).max(tri[2]) - lo) / cell).floor();
+            let clamp = |v: f64, k: usize| (v.max(0.0) as usize).min(dims[k] - 1);
+            (clamp(a.x, 0)..=clamp(b.x, 0), clamp(a.y, 1)..=clamp(b.y, 1))
+        };
+        let mut offsets = vec![0usize; dims[0] * dims[1] + 1];
+        for t in 0..mesh.triangles.len() {
+            let (rx, ry) = range(t);
+            for x in rx {
+                for y in ry.clone() {
+                    offsets[x * dims[1] + y + 1] += 1;
+                }
+            }
+        }
+        for i in 0..dims[0] * dims[1] {
+            offsets[i + 1] += offsets[i];
+        }
+        let mut fill = offsets.clone();
+        let mut triangles = vec![0u32; offsets[dims[0] * dims[1]]];
+        for t in 0..mesh.triangles.len() {
+            let (rx, ry) = range(t);
+            for x in rx {
+                for y in ry.clone() {
+                    let slot = &mut fill[x * dims[1] + y];
+                    triangles[*slot] = t as u32;
+                    *slot += 1;
+                }
+            }
+        }
+        WindingField {
+            mesh,
+            boundary,
+            lo,
+            cell,
+            dims,
+            offsets,
+            triangles,
+        }
+    }
+
+    pub fn winding(&self, p: DVec3) -> f64 {
+        let q = (p.truncate() - self.lo) / self.cell;
+        let mut count = 0i32;
+        if q.x >= 0.0 && q.y >= 0.0 && (q.x as usize) < self.dims[0] && (q.y as usize) < self.dims[1] {
+            let b = q.x as usize * self.dims[1] + q.y as usize;
+            for &t in &self.triangles[self.offsets[b]..self.offsets[b + 1]] {
+                let tri = self.mesh.corners(t as usize).map(|v| v.as_dvec3());
+                if let Some(hit) = column_hit(&tri, p.truncate())
+                    && hit.z > p.z
+                {
+                    count += i32::from(hit.sign);
+                }
+            }
+        }
+        f64::from(count) + boundary_term(self.mesh, self.boundary, p)
+    }
+}

@@ -129,7 +129,7 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
         min_box_voxels: cook.min_box_voxels,
     };
     let voxel_boxes = timings.time("boxes", || boxes::expand(&inner, grid.dims, &expansion));
-    let mut candidates: Vec<WorldBox> = timings.time("refine", || {
+    let candidates: Vec<(WorldBox, WorldBox)> = timings.time("refine", || {
         let mut owner = vec![u32::MAX; grid.len()];
         for (id, b) in voxel_boxes.iter().enumerate() {
             for x in b.lo[0]..b.hi[0] {
@@ -149,24 +149,26 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
             .iter()
             .enumerate()
             .map(|(id, b)| {
-                if cook.refine {
-                    refine::refine(&input, id as u32, b)
-                } else {
-                    let w = |v: [usize; 3]| grid.to_world(glam::DVec3::from_array(v.map(|c| c as f64))).to_array();
-                    WorldBox {
-                        lo: w(b.lo),
-                        hi: w(b.hi),
-                    }
-                }
+                let on_grid = WorldBox::from_voxels(&grid, b);
+                let refined = cook.refine.then(|| refine::refine(&input, id as u32, b));
+                (refined.unwrap_or(on_grid), on_grid)
             })
             .collect()
     });
-    let exposed_boxes = match &open_views {
-        None => 0,
+    // Near an opening a refined face can reach past the solid; such a box falls back to its
+    // voxels, and is dropped if even those show.
+    let mut exposed_boxes = 0;
+    let candidates: Vec<WorldBox> = match &open_views {
+        None => candidates.into_iter().map(|(refined, _)| refined).collect(),
         Some(views) => timings.time("exposure", || {
-            let before = candidates.len();
-            candidates.retain(|b| views.hides(b));
-            before - candidates.len()
+            candidates
+                .into_iter()
+                .filter_map(|(refined, on_grid)| {
+                    let kept = [refined, on_grid].into_iter().find(|b| views.hides(b));
+                    exposed_boxes += usize::from(kept.is_none());
+                    kept
+                })
+                .collect()
         }),
     };
     // Selection merges as it goes; its last merge is the occluder.

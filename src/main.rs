@@ -33,6 +33,11 @@ enum Command {
         #[command(flatten)]
         settings: SettingsArgs,
     },
+    /// Cook the built-in sample, a torus, with evaluation: a check that everything works.
+    Demo {
+        #[arg(short, long, default_value = "torus.occluder.glb")]
+        output: PathBuf,
+    },
     /// Judge any occluder mesh against its original.
     Eval {
         original: PathBuf,
@@ -135,39 +140,23 @@ fn run(cli: Cli) -> Result<()> {
             let (mesh, stats) = mesh::load_file(&input)?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
             let cooked = cook::cook(mesh, stats, ingest_ms, &settings, eval);
-            let r = &cooked.report;
-            let extras = serde_json::json!({
-                "key": r.key,
-                "pipeline_version": r.pipeline_version,
-                "source_triangles": r.input.triangles,
-                "boxes": r.boxes.kept,
-                "triangles": r.occluder.triangles,
-            });
-            write(&output, &glb::write(&cooked.occluder, extras))?;
+            write_occluder(&output, &cooked)?;
             if let Some(path) = report {
-                write(&path, &serde_json::to_vec_pretty(r)?)?;
+                write(&path, &serde_json::to_vec_pretty(&cooked.report)?)?;
             }
-            print!(
-                "{}: {} triangles in, occluder of {} triangles from {} boxes in {:.1} ms",
-                input.display(),
-                r.input.triangles,
-                r.occluder.triangles,
-                r.boxes.kept,
-                r.timings_ms.total()
-            );
-            match &r.quality {
-                Some(q) => println!(
-                    "; coverage {:.1}%, false pixels {} ({} in non-below views), outside samples {:.2}%",
-                    q.coverage * 100.0,
-                    q.false_pixels,
-                    q.false_pixels_non_below,
-                    q.outside_samples * 100.0
-                ),
-                None => println!(),
-            }
-            for note in &r.notes {
-                println!("note: {note}");
-            }
+            summarize(&input, &cooked.report);
+        }
+        Command::Demo { output } => {
+            let mesh = mesh::shapes::torus(1.0, 0.45, 64, 32);
+            let stats = mesh::IngestStats {
+                input_triangles: mesh.triangles.len(),
+                input_vertices: mesh.positions.len(),
+                welded_vertices: mesh.positions.len(),
+                ..Default::default()
+            };
+            let cooked = cook::cook(mesh, stats, 0.0, &config::load(None, &[])?, true);
+            write_occluder(&output, &cooked)?;
+            summarize(Path::new("built-in torus"), &cooked.report);
         }
         Command::Eval {
             original,
@@ -220,6 +209,42 @@ fn run(cli: Cli) -> Result<()> {
         }
     }
     Ok(())
+}
+
+fn write_occluder(path: &Path, cooked: &cook::Cooked) -> Result<()> {
+    let r = &cooked.report;
+    let extras = serde_json::json!({
+        "key": r.key,
+        "pipeline_version": r.pipeline_version,
+        "source_triangles": r.input.triangles,
+        "boxes": r.boxes.kept,
+        "triangles": r.occluder.triangles,
+    });
+    write(path, &glb::write(&cooked.occluder, extras))
+}
+
+fn summarize(input: &Path, r: &cook::Report) {
+    print!(
+        "{}: {} triangles in, occluder of {} triangles from {} boxes in {:.1} ms",
+        input.display(),
+        r.input.triangles,
+        r.occluder.triangles,
+        r.boxes.kept,
+        r.timings_ms.total()
+    );
+    match &r.quality {
+        Some(q) => println!(
+            "; coverage {:.1}%, false pixels {} ({} in non-below views), outside samples {:.2}%",
+            q.coverage * 100.0,
+            q.false_pixels,
+            q.false_pixels_non_below,
+            q.outside_samples * 100.0
+        ),
+        None => println!(),
+    }
+    for note in &r.notes {
+        println!("note: {note}");
+    }
 }
 
 fn write(path: &Path, bytes: &[u8]) -> Result<()> {

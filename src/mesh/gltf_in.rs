@@ -9,8 +9,27 @@ use std::path::Path;
 const FORMAT: &str = "glTF";
 
 pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| IngestError::malformed(FORMAT, e.to_string()))?;
-    let buffers = load_buffers(&gltf, base_dir)?;
+    match gltf::Gltf::from_slice(bytes) {
+        Ok(gltf) => read_scene(&gltf, base_dir),
+        Err(invalid) => {
+            // Say what is really wrong where the geometry can still be read (infinite
+            // coordinates make min/max invalid, for one); the reader may panic on an invalid
+            // document, so it runs guarded.
+            let lenient = gltf::Gltf::from_slice_without_validation(bytes)
+                .ok()
+                .map(|gltf| std::panic::catch_unwind(|| read_scene(&gltf, base_dir).and_then(super::weld)));
+            Err(match lenient {
+                Some(Ok(Err(
+                    e @ (IngestError::NonFinite(..) | IngestError::IndexOutOfRange { .. } | IngestError::NodeCycle(_)),
+                ))) => e,
+                _ => IngestError::malformed(FORMAT, invalid.to_string()),
+            })
+        }
+    }
+}
+
+fn read_scene(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
+    let buffers = load_buffers(gltf, base_dir)?;
     let scene = gltf
         .default_scene()
         .or_else(|| gltf.scenes().next())

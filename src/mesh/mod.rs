@@ -3,6 +3,7 @@
 pub mod glb;
 mod gltf_in;
 mod obj;
+pub mod shapes;
 mod stl;
 pub mod topology;
 
@@ -143,7 +144,7 @@ pub fn load_bytes(bytes: &[u8], format: Format, base_dir: Option<&Path>) -> Resu
 }
 
 /// Welds vertices with identical positions, drops degenerate triangles, and validates.
-fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
+pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
     if let Some((i, p)) = raw.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
         return Err(IngestError::NonFinite(format!("{}, {}, {}", p.x, p.y, p.z), i));
     }

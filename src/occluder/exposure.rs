@@ -4,7 +4,9 @@
 //!
 //! The test renders the original's depth from many directions above the horizon. Voxels with a
 //! corner in front of that depth are removed before boxes grow, and each finished box is checked
-//! face by face, so a box that slips through between voxel corners is still caught.
+//! face by face, so a box that slips through between voxel corners is still caught. Each pixel
+//! takes the farthest depth of its 3×3 neighbourhood, so that an opening seen from a direction
+//! between the sampled ones, or between pixel centres, still counts.
 
 use super::WorldBox;
 use crate::eval::raster::{View, depth_image, rasterize};
@@ -15,8 +17,8 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 /// Directions on the whole sphere; those not below the object are used.
-const DIRECTIONS: usize = 128;
-const PIXELS: usize = 320;
+const DIRECTIONS: usize = 256;
+const PIXELS: usize = 256;
 
 pub struct OpenViews {
     views: Vec<View>,
@@ -31,7 +33,10 @@ impl OpenViews {
             .filter(|d| d.y >= 0.0)
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
-        let depths = views.par_iter().map(|v| depth_image(v, mesh.triangles_f64())).collect();
+        let depths = views
+            .par_iter()
+            .map(|v| farthest_nearby(&depth_image(v, mesh.triangles_f64()), v.pixels))
+            .collect();
         OpenViews { views, depths }
     }
 
@@ -82,4 +87,21 @@ impl OpenViews {
             hidden
         })
     }
+}
+
+/// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty).
+fn farthest_nearby(depth: &[f32], n: usize) -> Vec<f32> {
+    let mut out = vec![0f32; depth.len()];
+    for y in 0..n {
+        for x in 0..n {
+            let mut far = 0f32;
+            for ny in y.saturating_sub(1)..=(y + 1).min(n - 1) {
+                for nx in x.saturating_sub(1)..=(x + 1).min(n - 1) {
+                    far = far.max(depth[ny * n + nx]);
+                }
+            }
+            out[y * n + x] = far;
+        }
+    }
+    out
 }

@@ -19,6 +19,15 @@ pub struct WorldBox {
 }
 
 impl WorldBox {
+    /// The world-space extent of a box of voxels.
+    pub fn from_voxels(grid: &crate::voxel::Grid, b: &boxes::VoxelBox) -> WorldBox {
+        let at = |v: [usize; 3]| grid.to_world(DVec3::from_array(v.map(|c| c as f64))).to_array();
+        WorldBox {
+            lo: at(b.lo),
+            hi: at(b.hi),
+        }
+    }
+
     pub fn lo(&self) -> DVec3 {
         DVec3::from_array(self.lo)
     }

@@ -1,0 +1,106 @@
+//! The binary as users run it: settings errors name the key, bad files exit non-zero with one
+//! line, and cook → eval works on a mesh written here.
+
+use std::process::Command;
+
+fn run(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
+        .args(args)
+        .output()
+        .expect("binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn temp(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+fn write_cube_obj() -> std::path::PathBuf {
+    let path = temp("cube.obj");
+    std::fs::write(
+        &path,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n\
+         f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n",
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn cook_then_eval() {
+    let input = write_cube_obj();
+    let out = temp("cube.glb");
+    let report = temp("cube.json");
+    let (ok, stdout, stderr) = run(&[
+        "cook",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+        "--eval",
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("false pixels 0"), "{stdout}");
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(json["occluder"]["triangles"], 12);
+    assert_eq!(json["quality"]["false_pixels"], 0);
+    let (ok, stdout, stderr) = run(&["eval", input.to_str().unwrap(), out.to_str().unwrap()]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("false pixels       0"), "{stdout}");
+}
+
+#[test]
+fn errors_are_one_line_and_name_the_problem() {
+    let input = write_cube_obj();
+    let input = input.to_str().unwrap();
+    let out = temp("x.glb");
+    let out = out.to_str().unwrap();
+    let bad_config = temp("bad.toml");
+    std::fs::write(&bad_config, "[cook]\nresolutoin = 64\n").unwrap();
+    let nan = temp("nan.obj");
+    std::fs::write(&nan, "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n").unwrap();
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec!["cook", input, "-o", out, "--set", "cook.colour=red"],
+            "unknown setting `cook.colour`",
+        ),
+        (
+            vec!["cook", input, "-o", out, "--resolution", "2"],
+            "`cook.resolution` = 2 is out of range",
+        ),
+        (
+            vec!["cook", input, "-o", out, "--set", "cook.max_boxes=many"],
+            "`cook.max_boxes` must be integer",
+        ),
+        (
+            vec!["cook", input, "-o", out, "--set", "cook.max_boxes=-3"],
+            "`cook.max_boxes` = -3 is out of range",
+        ),
+        (
+            vec!["cook", input, "-o", out, "--config", bad_config.to_str().unwrap()],
+            "unknown setting `cook.resolutoin`",
+        ),
+        (
+            vec!["cook", nan.to_str().unwrap(), "-o", out],
+            "non-finite vertex coordinate",
+        ),
+        (
+            vec!["cook", "/nonexistent/mesh.obj", "-o", out],
+            "cannot read /nonexistent/mesh.obj",
+        ),
+        (vec!["cook", "mesh.fbx", "-o", out], "unknown mesh format"),
+    ];
+    for (args, expected) in cases {
+        let (ok, _, stderr) = run(&args);
+        assert!(!ok, "{args:?} succeeded");
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+        assert_eq!(stderr.trim_end().lines().count(), 1, "{args:?}: {stderr}");
+    }
+}

@@ -1,0 +1,78 @@
+//! Synthetic meshes whose true inside is known, and helpers shared by the tests.
+#![allow(dead_code)]
+
+use glam::Vec3;
+use occluder_cook::config::{self, Settings};
+use occluder_cook::cook::{Cooked, cook};
+use occluder_cook::mesh::{IngestStats, Mesh};
+use std::path::PathBuf;
+
+/// An axis-aligned cube as 12 outward-facing triangles; `skip` names faces to leave out
+/// (0: -x, 1: +x, 2: -y, 3: +y, 4: -z, 5: +z).
+pub fn cuboid(lo: Vec3, hi: Vec3, skip: &[usize]) -> Mesh {
+    let c = |i: usize| {
+        Vec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    };
+    const QUADS: [[u32; 4]; 6] = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
+    let mut mesh = Mesh {
+        positions: (0..8).map(c).collect(),
+        triangles: Vec::new(),
+    };
+    for (f, q) in QUADS.iter().enumerate() {
+        if !skip.contains(&f) {
+            mesh.triangles.push([q[0], q[1], q[2]]);
+            mesh.triangles.push([q[0], q[2], q[3]]);
+        }
+    }
+    mesh
+}
+
+/// Several meshes as one, without welding.
+pub fn concat(parts: &[Mesh]) -> Mesh {
+    let mut out = Mesh::default();
+    for p in parts {
+        let base = out.positions.len() as u32;
+        out.positions.extend_from_slice(&p.positions);
+        out.triangles.extend(p.triangles.iter().map(|t| t.map(|i| i + base)));
+    }
+    out
+}
+
+#[allow(unused_imports)]
+pub use occluder_cook::mesh::shapes::torus;
+
+pub fn defaults() -> Settings {
+    config::load(None, &[]).expect("defaults load")
+}
+
+/// Cooks a synthetic mesh with evaluation at the default settings.
+pub fn cook_evaluated(mesh: Mesh) -> Cooked {
+    cook(mesh, IngestStats::default(), 0.0, &defaults(), true)
+}
+
+/// The shared corpus, or None (with a message saying so) when it is absent.
+pub fn corpus() -> Option<PathBuf> {
+    let dir = std::env::var_os("OCCLUDER_CORPUS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes"));
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "corpus not found at {}: set OCCLUDER_CORPUS to run the corpus tests; skipping",
+            dir.display()
+        );
+        None
+    }
+}

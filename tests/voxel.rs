@@ -1,0 +1,55 @@
+//! Voxel stages against plain definitions: surface voxels against brute-force overlap, and the
+//! inside classification against the winding number summed triangle by triangle.
+
+mod common;
+use common::{cuboid, torus};
+use glam::Vec3;
+use occluder_cook::mesh::topology::orient_closed_components;
+use occluder_cook::voxel::{Grid, InsideMethod, classify, surface, winding::direct};
+
+#[test]
+fn winding_classification_matches_definition_on_open_and_closed_meshes() {
+    for mut mesh in [
+        torus(1.0, 0.4, 24, 12),
+        cuboid(Vec3::splat(-1.0), Vec3::splat(1.0), &[2]),
+        cuboid(Vec3::splat(-1.0), Vec3::splat(1.0), &[1, 3]),
+    ] {
+        let topology = orient_closed_components(&mut mesh);
+        let (lo, hi) = mesh.bounds();
+        let grid = Grid::fit(lo, hi, 20);
+        let solid = classify(InsideMethod::Winding, &mesh, &topology, &grid);
+        let mut differ = 0;
+        for (i, &s) in solid.iter().enumerate() {
+            let [x, y, z] = grid.coords(i);
+            differ += usize::from(s != (direct(&mesh, grid.center(x, y, z)) >= 0.5));
+        }
+        assert_eq!(differ, 0, "{differ} of {} voxels differ", solid.len());
+    }
+}
+
+#[test]
+fn parity_equals_winding_on_a_watertight_mesh() {
+    let mut mesh = torus(1.0, 0.4, 24, 12);
+    let topology = orient_closed_components(&mut mesh);
+    let (lo, hi) = mesh.bounds();
+    let grid = Grid::fit(lo, hi, 32);
+    let parity = classify(InsideMethod::Parity, &mesh, &topology, &grid);
+    let winding = classify(InsideMethod::Winding, &mesh, &topology, &grid);
+    assert_eq!(parity, winding);
+    assert!(parity.iter().any(|&v| v));
+}
+
+#[test]
+fn surface_voxels_are_exactly_the_touched_ones() {
+    let mesh = torus(1.0, 0.4, 16, 8);
+    let (lo, hi) = mesh.bounds();
+    let grid = Grid::fit(lo, hi, 16);
+    let s = surface::voxelize(&mesh, &grid);
+    let half = glam::DVec3::splat(grid.voxel_size * (0.5 + 1e-6));
+    for (i, &v) in s.voxels.iter().enumerate() {
+        let [x, y, z] = grid.coords(i);
+        let touched = (0..mesh.triangles.len())
+            .any(|t| surface::triangle_box_overlap(grid.center(x, y, z), half, &mesh.corners(t).map(|p| p.as_dvec3())));
+        assert_eq!(v, touched, "voxel {x},{y},{z}");
+    }
+}

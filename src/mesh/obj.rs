@@ -10,10 +10,23 @@ pub fn read(bytes: &[u8]) -> Result<RawMesh, IngestError> {
         ignore_lines: true,
         ..Default::default()
     };
-    let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &options, |_| {
-        // Materials do not change geometry.
-        Ok(Default::default())
-    })
+    // Materials do not change geometry, and tobj rejects some material lines that other readers
+    // accept (an empty `usemtl`), so they are left out. CRLF endings become LF, which tobj's
+    // line continuations (`\` at the end of a line) need.
+    let mut geometry = Vec::with_capacity(bytes.len());
+    for line in bytes.split(|&b| b == b'\n') {
+        let line = line.strip_suffix(b"\r").unwrap_or(line);
+        let start = line.trim_ascii_start();
+        if !start.starts_with(b"usemtl") && !start.starts_with(b"mtllib") {
+            geometry.extend_from_slice(line);
+            geometry.push(b'\n');
+        }
+    }
+    let (models, _) = tobj::load_obj_buf(
+        &mut std::io::Cursor::new(geometry),
+        &options,
+        |_| Ok(Default::default()),
+    )
     .map_err(|e| IngestError::malformed("OBJ", e.to_string()))?;
     let mut raw = RawMesh::default();
     for model in &models {

@@ -11,6 +11,17 @@ pub mod select;
 use glam::DVec3;
 use serde::Serialize;
 
+/// The six faces of a box over its corners (corner i has bit 0 for x, 1 for y, 2 for z set at
+/// the maximum), each a counter-clockwise quad seen from outside: -x, +x, -y, +y, -z, +z.
+pub const BOX_FACES: [[usize; 4]; 6] = [
+    [0, 4, 6, 2],
+    [1, 3, 7, 5],
+    [0, 1, 5, 4],
+    [2, 6, 7, 3],
+    [0, 2, 3, 1],
+    [4, 5, 7, 6],
+];
+
 /// An axis-aligned box in world space.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct WorldBox {
@@ -53,17 +64,8 @@ impl WorldBox {
     /// The 12 outward-facing triangles of the box.
     pub fn triangles(&self) -> [[DVec3; 3]; 12] {
         let c = self.corners();
-        // Each face as a counter-clockwise quad seen from outside.
-        const QUADS: [[usize; 4]; 6] = [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ];
         let mut out = [[DVec3::ZERO; 3]; 12];
-        for (f, q) in QUADS.iter().enumerate() {
+        for (f, q) in BOX_FACES.iter().enumerate() {
             out[2 * f] = [c[q[0]], c[q[1]], c[q[2]]];
             out[2 * f + 1] = [c[q[0]], c[q[2]], c[q[3]]];
         }

@@ -17,19 +17,12 @@ pub fn cuboid(lo: Vec3, hi: Vec3, skip: &[usize]) -> Mesh {
             if i & 4 == 0 { lo.z } else { hi.z },
         )
     };
-    const QUADS: [[u32; 4]; 6] = [
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-    ];
     let mut mesh = Mesh {
         positions: (0..8).map(c).collect(),
         triangles: Vec::new(),
     };
-    for (f, q) in QUADS.iter().enumerate() {
+    for (f, q) in occluder_cook::occluder::BOX_FACES.iter().enumerate() {
+        let q = q.map(|i| i as u32);
         if !skip.contains(&f) {
             mesh.triangles.push([q[0], q[1], q[2]]);
             mesh.triangles.push([q[0], q[2], q[3]]);

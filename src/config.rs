@@ -3,6 +3,7 @@
 //! a typo or a bad value is an error that names the key.
 
 use crate::eval::EvalSettings;
+use crate::occluder::Shape;
 use crate::voxel::InsideMethod;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -29,6 +30,9 @@ pub struct CookSettings {
     pub max_triangles: usize,
     pub min_silhouette_gain: f64,
     pub refine: bool,
+    pub shapes: Vec<Shape>,
+    pub quad_grid: usize,
+    pub min_patch_area: f64,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -162,6 +166,8 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.min_box_voxels", c.min_box_voxels as f64, 1.0, 1e12)?;
     check("cook.max_triangles", c.max_triangles as f64, 0.0, 1e9)?;
     check("cook.min_silhouette_gain", c.min_silhouette_gain, 0.0, 1.0)?;
+    check("cook.quad_grid", c.quad_grid as f64, 8.0, 4096.0)?;
+    check("cook.min_patch_area", c.min_patch_area, 0.0, 1.0)?;
     check("eval.views", e.views as f64, 1.0, 4096.0)?;
     check("eval.pixels", e.pixels as f64, 16.0, 4096.0)?;
     check("eval.outside_samples", e.outside_samples as f64, 0.0, 10_000_000.0)?;

@@ -5,8 +5,9 @@ use crate::config::Settings;
 use crate::eval::{Quality, evaluate};
 use crate::key::{PIPELINE_VERSION, cache_key};
 use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_components};
-use crate::occluder::{WorldBox, boxes, exposure::OpenViews, refine, select};
-use crate::voxel::{self, Grid, surface};
+use crate::occluder::{Occluder, Panel, Shape, WorldBox, boxes, exposure::OpenViews, patches, quads, refine, select};
+use crate::voxel::{self, Grid, InsideMethod, surface, winding::WindingField};
+use glam::DVec3;
 use serde::Serialize;
 use std::time::Instant;
 
@@ -29,7 +30,12 @@ impl Timings {
     fn time<T>(&mut self, stage: &str, f: impl FnOnce() -> T) -> T {
         let start = Instant::now();
         let out = f();
-        self.0.push((stage.to_string(), start.elapsed().as_secs_f64() * 1e3));
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        // A stage that runs in several places (exposure) adds up under one name.
+        match self.0.iter_mut().find(|(s, _)| s == stage) {
+            Some((_, total)) => *total += ms,
+            None => self.0.push((stage.to_string(), ms)),
+        }
         out
     }
 
@@ -38,7 +44,7 @@ impl Timings {
     }
 
     pub fn get(&self, stage: &str) -> f64 {
-        self.0.iter().filter(|(s, _)| s == stage).map(|(_, ms)| ms).sum()
+        self.0.iter().find(|(s, _)| s == stage).map_or(0.0, |(_, ms)| *ms)
     }
 }
 
@@ -50,6 +56,7 @@ pub struct Report {
     pub grid: Grid,
     pub voxels: VoxelReport,
     pub boxes: BoxReport,
+    pub panels: PanelReport,
     pub occluder: OccluderReport,
     /// The device that ran the pipeline.
     pub device: String,
@@ -86,19 +93,33 @@ pub struct BoxReport {
     pub kept: usize,
     /// Share of the inner voxels that the kept boxes fill.
     pub inner_volume_covered: f64,
-    /// Silhouette share each kept box added when it was chosen.
-    pub silhouette_gains: Vec<f64>,
     pub kept_boxes: Vec<WorldBox>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct PanelReport {
+    /// In-solid quads found, before selection.
+    pub quad_candidates: usize,
+    /// On-surface patches found, before selection.
+    pub patch_candidates: usize,
+    /// Quads rejected because they show through an opening (open meshes only).
+    pub exposed: usize,
+    pub kept_panels: Vec<Panel>,
 }
 
 #[derive(Clone, Debug, Serialize)]
 pub struct OccluderReport {
     pub triangles: usize,
     pub vertices: usize,
+    pub boxes: usize,
+    pub quads: usize,
+    pub patches: usize,
+    /// Silhouette share each piece added when it was chosen, in the order chosen.
+    pub silhouette_gains: Vec<f64>,
 }
 
 pub struct Cooked {
-    pub occluder: Mesh,
+    pub occluder: Occluder,
     pub report: Report,
 }
 
@@ -128,7 +149,12 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
         max_boxes: cook.max_boxes,
         min_box_voxels: cook.min_box_voxels,
     };
-    let voxel_boxes = timings.time("boxes", || boxes::expand(&inner, grid.dims, &expansion));
+    let use_shape = |shape: Shape| cook.shapes.contains(&shape);
+    let voxel_boxes = if use_shape(Shape::Boxes) {
+        timings.time("boxes", || boxes::expand(&inner, grid.dims, &expansion))
+    } else {
+        Vec::new()
+    };
     let candidates: Vec<(WorldBox, WorldBox)> = timings.time("refine", || {
         let mut owner = vec![u32::MAX; grid.len()];
         for (id, b) in voxel_boxes.iter().enumerate() {
@@ -164,36 +190,91 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
             candidates
                 .into_iter()
                 .filter_map(|(refined, on_grid)| {
-                    let kept = [refined, on_grid].into_iter().find(|b| views.hides(b));
+                    let kept = [refined, on_grid].into_iter().find(|b| views.hides(&b.triangles()));
                     exposed_boxes += usize::from(kept.is_none());
                     kept
                 })
                 .collect()
         }),
     };
-    // Selection merges as it goes; its last merge is the occluder.
+    let (quads, quads_found) = if use_shape(Shape::Quads) {
+        let quads = timings.time("quads", || {
+            let field = WindingField::new(&mesh, &topology.boundary);
+            // A closed surface's crossings decide exactly. An open one's winding number varies
+            // away from the surface, so its inner voxels decide: those that no camera sees
+            // through an opening. The exposure test then checks each quad.
+            let inside = |p: DVec3| {
+                if topology.boundary.is_empty() {
+                    let (sum, count) = field.crossings_above(p);
+                    match cook.inside {
+                        InsideMethod::Winding => sum >= 1,
+                        InsideMethod::Parity => count % 2 == 1,
+                    }
+                } else {
+                    grid.containing(p).is_some_and(|i| inner[i])
+                }
+            };
+            quads::find(&mesh, cook.quad_grid, &inside)
+        });
+        let found = quads.len();
+        let kept: Vec<Panel> = match &open_views {
+            None => quads,
+            Some(views) => timings.time("exposure", || {
+                quads.into_iter().filter(|q| views.hides(&q.triangles())).collect()
+            }),
+        };
+        (kept, found)
+    } else {
+        (Vec::new(), 0)
+    };
+    let exposed_quads = quads_found - quads.len();
+    let quad_count = quads.len();
+    let mut panels = quads;
+    if use_shape(Shape::Patches) {
+        let (lo, hi) = mesh.bounds();
+        let size = f64::from((hi - lo).max_element());
+        panels.extend(timings.time("patches", || {
+            patches::find(
+                &mesh,
+                &topology.open_triangles,
+                size / cook.quad_grid as f64,
+                cook.min_patch_area * size * size,
+            )
+        }));
+    }
+    // Selection merges as it goes; its last merge is the solid part of the occluder.
     let selection = timings.time("select+merge", || {
-        select::select(&mesh, &candidates, cook.max_triangles, cook.min_silhouette_gain)
+        select::select(
+            &mesh,
+            &candidates,
+            &panels,
+            cook.max_triangles,
+            cook.min_silhouette_gain,
+        )
     });
-    let occluder = selection.occluder;
-    let kept = selection.chosen;
+    let occluder = Occluder {
+        solid: selection.solid,
+        panels: selection.panels.iter().map(|&i| panels[i]).collect(),
+    };
+    let kept = selection.boxes;
     let mut notes = Vec::new();
-    if exposed_voxels + exposed_boxes > 0 {
+    if exposed_voxels + exposed_boxes + exposed_quads > 0 {
         notes.push(format!(
-            "left out {exposed_voxels} voxels and {exposed_boxes} boxes that show through an opening from above the horizon"
+            "left out {exposed_voxels} voxels, {exposed_boxes} boxes and {exposed_quads} quads that show through an opening from above the horizon"
         ));
     }
-    if inner_count == 0 {
+    if inner_count == 0 && use_shape(Shape::Boxes) {
         notes.push(format!(
             "no inner voxels at resolution {}: the mesh encloses no volume thicker than a voxel, so no box fits",
             cook.resolution
         ));
-    } else if kept.is_empty() {
-        notes.push("no box added enough silhouette within the triangle budget".into());
+    }
+    if occluder.triangles() == 0 {
+        notes.push("the occluder is empty: no piece added enough silhouette within the triangle budget".into());
     }
     let quality = with_eval.then(|| {
         timings.time("eval", || {
-            evaluate(&mesh, &topology.boundary, &occluder, &settings.eval)
+            evaluate(&mesh, &topology.boundary, &occluder.mesh(), &settings.eval)
         })
     });
     let kept_voxels: usize = kept.iter().map(|&i| voxel_boxes[i].voxels()).sum();
@@ -221,12 +302,21 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
             } else {
                 0.0
             },
-            silhouette_gains: selection.gains,
             kept_boxes: kept.iter().map(|&i| candidates[i]).collect(),
         },
+        panels: PanelReport {
+            quad_candidates: quads_found,
+            patch_candidates: panels.len() - quad_count,
+            exposed: exposed_quads,
+            kept_panels: occluder.panels.clone(),
+        },
         occluder: OccluderReport {
-            triangles: occluder.triangles.len(),
-            vertices: occluder.positions.len(),
+            triangles: occluder.triangles(),
+            vertices: occluder.solid.positions.len() + 4 * occluder.panels.len(),
+            boxes: kept.len(),
+            quads: occluder.panels.iter().filter(|p| p.shape == Shape::Quads).count(),
+            patches: occluder.panels.iter().filter(|p| p.shape == Shape::Patches).count(),
+            silhouette_gains: selection.gains,
         },
         device: "cpu".into(),
         timings_ms: timings,

@@ -2,6 +2,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use occluder_cook::config::{self, Settings};
 use occluder_cook::mesh::{self, glb, topology::orient_closed_components};
+use occluder_cook::occluder::panel_mesh;
 use occluder_cook::voxel::InsideMethod;
 use occluder_cook::{bench, cook, eval};
 use std::path::{Path, PathBuf};
@@ -77,9 +78,10 @@ struct SettingsArgs {
     /// cook.target_coverage: share of the inner volume the boxes should fill.
     #[arg(long)]
     target_coverage: Option<f64>,
-    /// eval.views: view directions.
+    /// Views of eval: a number of directions around the mesh (eval.views), `outside` for those,
+    /// or `inside` for a cube map from the centre of its bounds (eval.view_set).
     #[arg(long)]
-    views: Option<usize>,
+    views: Option<String>,
     /// eval.pixels: image size.
     #[arg(long)]
     pixels: Option<usize>,
@@ -105,7 +107,11 @@ impl SettingsArgs {
         );
         flag("cook.max_triangles", int(self.max_triangles));
         flag("cook.target_coverage", self.target_coverage.map(toml::Value::Float));
-        flag("eval.views", int(self.views));
+        match self.views.as_deref().map(|v| (v, v.parse::<usize>())) {
+            Some((_, Ok(n))) => flag("eval.views", int(Some(n))),
+            Some((set, Err(_))) => flag("eval.view_set", Some(toml::Value::String(set.to_string()))),
+            None => {}
+        }
         flag("eval.pixels", int(self.pixels));
         for assignment in &self.set {
             overrides.push(config::parse_assignment(assignment)?);
@@ -217,19 +223,36 @@ fn write_occluder(path: &Path, cooked: &cook::Cooked) -> Result<()> {
         "key": r.key,
         "pipeline_version": r.pipeline_version,
         "source_triangles": r.input.triangles,
-        "boxes": r.boxes.kept,
+        "boxes": r.occluder.boxes,
+        "quads": r.occluder.quads,
+        "patches": r.occluder.patches,
         "triangles": r.occluder.triangles,
     });
-    write(path, &glb::write(&cooked.occluder, extras))
+    let panels = panel_mesh(&cooked.occluder.panels);
+    let parts = [
+        glb::Part {
+            name: "occluder-solid",
+            mesh: &cooked.occluder.solid,
+            double_sided: false,
+        },
+        glb::Part {
+            name: "occluder-panels",
+            mesh: &panels,
+            double_sided: true,
+        },
+    ];
+    write(path, &glb::write(&parts, extras))
 }
 
 fn summarize(input: &Path, r: &cook::Report) {
     print!(
-        "{}: {} triangles in, occluder of {} triangles from {} boxes in {:.1} ms",
+        "{}: {} triangles in, occluder of {} triangles from {} boxes, {} quads and {} patches in {:.1} ms",
         input.display(),
         r.input.triangles,
         r.occluder.triangles,
-        r.boxes.kept,
+        r.occluder.boxes,
+        r.occluder.quads,
+        r.occluder.patches,
         r.timings_ms.total()
     );
     match &r.quality {

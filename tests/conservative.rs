@@ -4,6 +4,8 @@
 mod common;
 use common::{concat, cook_evaluated, cuboid, torus};
 use glam::Vec3;
+use occluder_cook::cook::cook;
+use occluder_cook::occluder::Shape;
 
 fn assert_vertices_inside(vertices: &[Vec3], inside: impl Fn(Vec3) -> bool) {
     for v in vertices {
@@ -21,8 +23,8 @@ fn building_without_floor() {
     let (lo, hi) = (Vec3::new(-1.0, 0.0, -1.5), Vec3::new(1.0, 2.0, 1.5));
     let cooked = cook_evaluated(cuboid(lo, hi, &[2]));
     let q = cooked.report.quality.unwrap();
-    assert!(cooked.occluder.triangles.len() >= 12, "{:?}", cooked.report.notes);
-    assert_vertices_inside(&cooked.occluder.positions, |p| in_box(p, lo, hi));
+    assert!(cooked.occluder.triangles() >= 12, "{:?}", cooked.report.notes);
+    assert_vertices_inside(&cooked.occluder.mesh().positions, |p| in_box(p, lo, hi));
     assert_eq!(q.false_pixels_non_below, 0);
     assert!(q.coverage > 0.8, "coverage {}", q.coverage);
 }
@@ -33,7 +35,7 @@ fn two_overlapping_cubes() {
     let b = (Vec3::splat(-0.5), Vec3::splat(1.0));
     let cooked = cook_evaluated(concat(&[cuboid(a.0, a.1, &[]), cuboid(b.0, b.1, &[])]));
     let q = cooked.report.quality.unwrap();
-    assert_vertices_inside(&cooked.occluder.positions, |p| {
+    assert_vertices_inside(&cooked.occluder.mesh().positions, |p| {
         in_box(p, a.0, a.1) || in_box(p, b.0, b.1)
     });
     assert_eq!(q.false_pixels, 0);
@@ -49,8 +51,8 @@ fn cube_with_one_face_flipped() {
     mesh.triangles[3].swap(1, 2);
     let cooked = cook_evaluated(mesh);
     let q = cooked.report.quality.unwrap();
-    assert!(!cooked.occluder.triangles.is_empty());
-    assert_vertices_inside(&cooked.occluder.positions, |p| in_box(p, lo, hi));
+    assert!(cooked.occluder.triangles() > 0);
+    assert_vertices_inside(&cooked.occluder.mesh().positions, |p| in_box(p, lo, hi));
     assert_eq!(q.false_pixels, 0);
 }
 
@@ -59,9 +61,9 @@ fn torus_keeps_its_hole_open() {
     let (major, minor) = (1.0f32, 0.45f32);
     let cooked = cook_evaluated(torus(major, minor, 48, 24));
     let q = cooked.report.quality.unwrap();
-    assert!(!cooked.occluder.triangles.is_empty());
+    assert!(cooked.occluder.triangles() > 0);
     // Inside the tube: distance from the core circle below the minor radius.
-    assert_vertices_inside(&cooked.occluder.positions, |p| {
+    assert_vertices_inside(&cooked.occluder.mesh().positions, |p| {
         let ring = (p.x * p.x + p.z * p.z).sqrt() - major;
         (ring * ring + p.y * p.y).sqrt() <= minor + 1e-4
     });
@@ -70,10 +72,13 @@ fn torus_keeps_its_hole_open() {
 }
 
 #[test]
-fn wall_thinner_than_a_voxel_gives_no_occluder() {
+fn wall_thinner_than_a_voxel_gives_no_box() {
     // 64 voxels over 4 units: a voxel is 0.0625 wide, the wall 0.03.
-    let cooked = cook_evaluated(cuboid(Vec3::new(-2.0, 0.0, -0.015), Vec3::new(2.0, 3.0, 0.015), &[]));
-    assert!(cooked.occluder.triangles.is_empty());
+    let mut settings = common::defaults();
+    settings.cook.shapes = vec![Shape::Boxes];
+    let mesh = cuboid(Vec3::new(-2.0, 0.0, -0.015), Vec3::new(2.0, 3.0, 0.015), &[]);
+    let cooked = cook(mesh, Default::default(), 0.0, &settings, false);
+    assert_eq!(cooked.occluder.triangles(), 0);
     assert_eq!(cooked.report.voxels.inner, 0);
     assert!(
         cooked.report.notes[0].contains("no inner voxels"),
@@ -86,7 +91,7 @@ fn wall_thinner_than_a_voxel_gives_no_occluder() {
 fn budget_and_key_are_respected() {
     let mesh = torus(1.0, 0.45, 48, 24);
     let cooked = cook_evaluated(mesh.clone());
-    assert!(cooked.occluder.triangles.len() <= common::defaults().cook.max_triangles);
+    assert!(cooked.occluder.triangles() <= common::defaults().cook.max_triangles);
     // Same geometry, triangles in another order and rotated: same key.
     let mut shuffled = mesh.clone();
     shuffled.triangles.reverse();
@@ -97,6 +102,6 @@ fn budget_and_key_are_respected() {
     assert_eq!(cooked.report.key, again.report.key);
     let mut settings = common::defaults();
     settings.cook.resolution = 48;
-    let other = occluder_cook::cook::cook(mesh, Default::default(), 0.0, &settings, false);
+    let other = cook(mesh, Default::default(), 0.0, &settings, false);
     assert_ne!(cooked.report.key, other.report.key);
 }

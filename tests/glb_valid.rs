@@ -2,7 +2,7 @@
 //! into .ci/node_modules). Skips, saying so, where node or the validator is absent.
 
 use occluder_cook::mesh::{glb, shapes::torus};
-use occluder_cook::occluder::{WorldBox, merge::merge};
+use occluder_cook::occluder::{Panel, Shape, WorldBox, merge::merge, panel_mesh};
 use std::path::Path;
 use std::process::Command;
 
@@ -25,13 +25,29 @@ fn occluder_glb_has_no_validator_errors() {
     ]);
     let dir = std::env::temp_dir().join(format!("occluder-cook-glb-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    for (name, mesh) in [
-        ("occluder.glb", occluder),
-        ("torus.glb", torus(1.0, 0.4, 16, 8)),
-        ("empty.glb", Default::default()),
+    let panels = panel_mesh(&[Panel {
+        shape: Shape::Quads,
+        corners: [[0.0, 0.5, 0.0], [2.0, 0.5, 0.0], [2.0, 0.5, 1.0], [0.0, 0.5, 1.0]],
+    }]);
+    for (name, mesh, panels) in [
+        ("occluder.glb", occluder, panels),
+        ("torus.glb", torus(1.0, 0.4, 16, 8), Default::default()),
+        ("empty.glb", Default::default(), Default::default()),
     ] {
         let path = dir.join(name);
-        std::fs::write(&path, glb::write(&mesh, serde_json::json!({"key": "test"}))).unwrap();
+        let parts = [
+            glb::Part {
+                name: "solid",
+                mesh: &mesh,
+                double_sided: false,
+            },
+            glb::Part {
+                name: "panels",
+                mesh: &panels,
+                double_sided: true,
+            },
+        ];
+        std::fs::write(&path, glb::write(&parts, serde_json::json!({"key": "test"}))).unwrap();
         let script = "const v = require('gltf-validator'); const fs = require('fs');\
             v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[1])))\
             .then(r => { console.log(JSON.stringify(r.issues)); process.exit(r.issues.numErrors ? 1 : 0); })\

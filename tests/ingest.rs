@@ -4,6 +4,7 @@ mod common;
 use common::cuboid;
 use glam::Vec3;
 use occluder_cook::mesh::{Format, IngestError, glb, load_bytes, load_file};
+use occluder_cook::occluder::Shape;
 
 fn obj_cube() -> String {
     let m = cuboid(Vec3::ZERO, Vec3::ONE, &[]);
@@ -37,7 +38,12 @@ fn binary_stl(triangles: &[[Vec3; 3]], header: &[u8]) -> Vec<u8> {
 fn obj_and_glb_and_stl_give_the_same_welded_cube() {
     let (from_obj, stats) = load_bytes(obj_cube().as_bytes(), Format::Obj, None).unwrap();
     assert_eq!((from_obj.triangles.len(), stats.welded_vertices), (12, 8));
-    let glb_bytes = glb::write(&from_obj, serde_json::json!({}));
+    let part = glb::Part {
+        name: "cube",
+        mesh: &from_obj,
+        double_sided: false,
+    };
+    let glb_bytes = glb::write(&[part], serde_json::json!({}));
     let (from_glb, _) = load_bytes(&glb_bytes, Format::Gltf, None).unwrap();
     assert_eq!(from_glb.triangles, from_obj.triangles);
     let soup: Vec<[Vec3; 3]> = (0..12).map(|t| from_obj.corners(t)).collect();
@@ -173,8 +179,9 @@ fn broken_corpus_files_do_what_expected_md_says() {
         );
         let cooked = occluder_cook::cook::cook(mesh, stats, 0.0, &common::defaults(), false);
         if name == "singleFace.ascii.stl" {
-            assert!(cooked.occluder.triangles.is_empty());
-            assert!(!cooked.report.notes.is_empty());
+            // One face encloses nothing: at most a patch on the face itself.
+            assert!(cooked.occluder.solid.triangles.is_empty());
+            assert!(cooked.occluder.panels.iter().all(|p| p.shape == Shape::Patches));
         }
     }
     assert!(matches!(

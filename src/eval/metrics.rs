@@ -11,7 +11,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EvalSettings {
-    /// View directions on a Fibonacci sphere.
+    /// Where the cameras are.
+    pub view_set: ViewSet,
+    /// View directions on a Fibonacci sphere, for the outside views.
     pub views: usize,
     /// Image width and height in pixels.
     pub pixels: usize,
@@ -19,9 +21,20 @@ pub struct EvalSettings {
     pub outside_samples: usize,
 }
 
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ViewSet {
+    /// Orthographic views from directions all around the mesh, framing its bounding sphere.
+    Outside,
+    /// A cube map (six 90° perspective views) from the centre of the mesh's bounds: what a
+    /// player standing in a room sees of its walls.
+    Inside,
+}
+
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Quality {
-    /// Mean over views of |occluder ∩ original| / |original| pixels.
+    /// Mean over views of |occluder ∩ original| / |original| pixels (views that see the
+    /// original at all).
     pub coverage: f64,
     pub coverage_min: f64,
     /// Pixels where the occluder would hide something visible, over all views.
@@ -42,13 +55,24 @@ pub struct Quality {
 /// Judges `occluder` against `original`; `boundary` is the original's open boundary.
 pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, settings: &EvalSettings) -> Quality {
     let (center, radius) = original.bounding_sphere();
-    let directions = fibonacci_sphere(settings.views);
-    let per_view: Vec<(f64, u64, bool, DVec3)> = directions
+    let views: Vec<View> = match settings.view_set {
+        ViewSet::Outside => fibonacci_sphere(settings.views)
+            .into_iter()
+            .map(|dir| View::new(dir, center, radius, settings.pixels))
+            .collect(),
+        ViewSet::Inside => {
+            let (lo, hi) = original.bounds();
+            View::cube_map(((lo + hi) * 0.5).as_dvec3(), settings.pixels, 2e-4 * radius)
+        }
+    };
+    // Inside views are all from where a player stands; outside ones are "below" when the
+    // camera is under the object.
+    let inside = settings.view_set == ViewSet::Inside;
+    let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = views
         .par_iter()
-        .map(|&dir| {
-            let view = View::new(dir, center, radius, settings.pixels);
-            let m = depth_image(&view, original.triangles_f64());
-            let o = depth_image(&view, occluder.triangles_f64());
+        .map(|view| {
+            let m = depth_image(view, original.triangles_f64());
+            let o = depth_image(view, occluder.triangles_f64());
             let tolerance = view.depth_tolerance() as f32;
             let (mut both, mut seen, mut false_pixels) = (0u64, 0u64, 0u64);
             for (dm, d_o) in m.iter().zip(&o) {
@@ -60,17 +84,18 @@ pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, set
                     false_pixels += u64::from(!dm.is_finite() || *d_o < dm - tolerance);
                 }
             }
-            let coverage = if seen > 0 { both as f64 / seen as f64 } else { 1.0 };
-            (coverage, false_pixels, dir.y >= 0.0, dir)
+            let coverage = (seen > 0).then(|| both as f64 / seen as f64);
+            (coverage, false_pixels, inside || view.dir.y >= 0.0, view.dir)
         })
         .collect();
-    let n = per_view.len().max(1) as f64;
+    let seen: Vec<f64> = per_view.iter().filter_map(|v| v.0).collect();
+    let n = seen.len().max(1) as f64;
     let samples = sample_surface(occluder, settings.outside_samples);
     let field = WindingField::new(original, boundary);
     let outside = samples.par_iter().filter(|&&p| field.winding(p) < 0.5).count();
     Quality {
-        coverage: per_view.iter().map(|v| v.0).sum::<f64>() / n,
-        coverage_min: per_view.iter().map(|v| v.0).fold(1.0, f64::min),
+        coverage: seen.iter().sum::<f64>() / n,
+        coverage_min: seen.iter().copied().fold(1.0, f64::min),
         false_pixels: per_view.iter().map(|v| v.1).sum(),
         false_pixels_non_below: per_view.iter().filter(|v| v.2).map(|v| v.1).sum(),
         views: per_view.len(),

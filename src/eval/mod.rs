@@ -5,4 +5,4 @@ pub mod metrics;
 pub mod raster;
 pub mod views;
 
-pub use metrics::{EvalSettings, Quality, evaluate};
+pub use metrics::{EvalSettings, Quality, ViewSet, evaluate};

@@ -1,22 +1,51 @@
-//! Orthographic software rasterization at pixel centres: depth images of meshes and coverage
-//! masks of boxes.
+//! Software rasterization at pixel centres: depth images of meshes and coverage masks of boxes,
+//! through orthographic cameras around a mesh or perspective cameras inside it.
 
 use glam::{DVec2, DVec3};
 
-/// An orthographic camera framing a bounding sphere into `pixels` × `pixels`.
+#[derive(Clone, Copy, Debug)]
+enum Lens {
+    /// Framing the sphere (center, radius).
+    Orthographic { center: DVec3, radius: f64 },
+    /// A 90° field of view from `eye`.
+    Perspective { eye: DVec3 },
+}
+
+/// A square camera of `pixels` × `pixels`.
 #[derive(Clone, Debug)]
 pub struct View {
-    /// Unit vector from the sphere's centre towards the camera.
+    /// Unit vector from what is seen towards the camera.
     pub dir: DVec3,
     right: DVec3,
     up: DVec3,
-    center: DVec3,
-    radius: f64,
+    lens: Lens,
     pub pixels: usize,
+    tolerance: f64,
 }
 
 impl View {
+    /// An orthographic camera framing a bounding sphere, looking along `-dir`.
     pub fn new(dir: DVec3, center: DVec3, radius: f64, pixels: usize) -> View {
+        let radius = radius.max(1e-12);
+        let lens = Lens::Orthographic { center, radius };
+        View::looking(dir, lens, pixels, 2e-4 * radius)
+    }
+
+    /// A perspective camera at `eye` with a 90° field of view, looking along `-dir`.
+    /// `tolerance` is the depth tolerance of "nearer than" tests.
+    pub fn perspective(eye: DVec3, dir: DVec3, pixels: usize, tolerance: f64) -> View {
+        View::looking(dir, Lens::Perspective { eye }, pixels, tolerance)
+    }
+
+    /// The six faces of a cube map around `eye`.
+    pub fn cube_map(eye: DVec3, pixels: usize, tolerance: f64) -> Vec<View> {
+        [DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z]
+            .into_iter()
+            .map(|dir| View::perspective(eye, dir, pixels, tolerance))
+            .collect()
+    }
+
+    fn looking(dir: DVec3, lens: Lens, pixels: usize, tolerance: f64) -> View {
         let dir = dir.normalize();
         let hint = if dir.y.abs() > 0.99 { DVec3::Z } else { DVec3::Y };
         let right = hint.cross(dir).normalize();
@@ -25,36 +54,80 @@ impl View {
             dir,
             right,
             up,
-            center,
-            radius: radius.max(1e-12),
+            lens,
             pixels,
+            tolerance,
         }
     }
 
     /// Pixel coordinates (x, y) and depth (distance in front of the camera plane).
     pub fn project(&self, p: DVec3) -> DVec3 {
-        let d = p - self.center;
-        let scale = self.pixels as f64 / (2.0 * self.radius);
-        DVec3::new(
-            (d.dot(self.right) + self.radius) * scale,
-            (d.dot(self.up) + self.radius) * scale,
-            self.radius - d.dot(self.dir),
-        )
+        let half = self.pixels as f64 / 2.0;
+        match self.lens {
+            Lens::Orthographic { center, radius } => {
+                let d = p - center;
+                let scale = half / radius;
+                DVec3::new(
+                    (d.dot(self.right) + radius) * scale,
+                    (d.dot(self.up) + radius) * scale,
+                    radius - d.dot(self.dir),
+                )
+            }
+            Lens::Perspective { eye } => {
+                let d = p - eye;
+                let z = -d.dot(self.dir);
+                DVec3::new(
+                    (d.dot(self.right) / z + 1.0) * half,
+                    (d.dot(self.up) / z + 1.0) * half,
+                    z,
+                )
+            }
+        }
     }
 
-    /// The depth tolerance of "nearer than" tests: 1e-4 of the sphere's diameter.
+    /// The depth tolerance of "nearer than" tests: 1e-4 of the framed diameter.
     pub fn depth_tolerance(&self) -> f64 {
-        2e-4 * self.radius
+        self.tolerance
     }
 }
 
 /// Calls `visit(pixel index, depth)` for every pixel centre the projected triangle covers.
 /// Edges are inclusive, so triangles sharing an edge leave no crack.
 pub fn rasterize(view: &View, tri: &[DVec3; 3], mut visit: impl FnMut(usize, f64)) {
-    let p = tri.map(|v| view.project(v));
+    match view.lens {
+        Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), |d| d, &mut visit),
+        Lens::Perspective { eye } => {
+            // Clip to the near plane in front of the eye; 1/z is what varies linearly on screen.
+            let near = view.tolerance;
+            let z = tri.map(|v| -(v - eye).dot(view.dir));
+            let mut poly: Vec<DVec3> = Vec::with_capacity(4);
+            for k in 0..3 {
+                let (a, b) = (k, (k + 1) % 3);
+                if z[a] >= near {
+                    poly.push(tri[a]);
+                }
+                if (z[a] >= near) != (z[b] >= near) {
+                    let s = (near - z[a]) / (z[b] - z[a]);
+                    poly.push(tri[a] + (tri[b] - tri[a]) * s);
+                }
+            }
+            for k in 1..poly.len().saturating_sub(1) {
+                let p = [poly[0], poly[k], poly[k + 1]].map(|v| {
+                    let q = view.project(v);
+                    DVec3::new(q.x, q.y, 1.0 / q.z)
+                });
+                fill(view, p, |w| 1.0 / w, &mut visit);
+            }
+        }
+    }
+}
+
+/// Visits the pixel centres inside the screen triangle `p` (x, y, a value that varies linearly
+/// on screen), with `depth` turning the interpolated value into a depth.
+fn fill(view: &View, p: [DVec3; 3], depth: impl Fn(f64) -> f64, visit: &mut impl FnMut(usize, f64)) {
     let q = p.map(|v| v.truncate());
     let area = cross(q[1] - q[0], q[2] - q[0]);
-    if area == 0.0 {
+    if area == 0.0 || !area.is_finite() {
         return;
     }
     let n = view.pixels as f64;
@@ -74,7 +147,7 @@ pub fn rasterize(view: &View, tri: &[DVec3; 3], mut visit: impl FnMut(usize, f64
             let w1 = cross(q[0] - q[2], c - q[2]) / area;
             let w2 = cross(q[1] - q[0], c - q[0]) / area;
             if w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0 {
-                visit(y * view.pixels + x, w0 * p[0].z + w1 * p[1].z + w2 * p[2].z);
+                visit(y * view.pixels + x, depth(w0 * p[0].z + w1 * p[1].z + w2 * p[2].z));
             }
         }
     }

@@ -209,6 +209,14 @@ pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
 }
 
 impl Mesh {
+    /// Adds `other`'s triangles, without welding.
+    pub fn append(&mut self, other: &Mesh) {
+        let base = self.positions.len() as u32;
+        self.positions.extend_from_slice(&other.positions);
+        self.triangles
+            .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
+    }
+
     /// Axis-aligned bounds (min, max).
     pub fn bounds(&self) -> (Vec3, Vec3) {
         self.positions

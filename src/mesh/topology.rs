@@ -26,6 +26,9 @@ pub struct Topology {
     pub inverted_components: usize,
     #[serde(skip)]
     pub boundary: Vec<BoundaryEdge>,
+    /// Per triangle: whether its component has an open boundary (no volume of its own).
+    #[serde(skip)]
+    pub open_triangles: Vec<bool>,
 }
 
 /// Turns inverted closed components outwards in place and returns the topology of the result.
@@ -54,6 +57,11 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
         components: count,
         closed_components: open.iter().filter(|o| !**o).count(),
         inverted_components: inverted.iter().filter(|i| **i).count(),
+        open_triangles: mesh
+            .triangles
+            .iter()
+            .map(|t| open[component[t[0] as usize] as usize])
+            .collect(),
         ..Default::default()
     };
     for (&(a, b), uses) in &edges {

@@ -8,7 +8,6 @@
 //! takes the farthest depth of its 3×3 neighbourhood, so that an opening seen from a direction
 //! between the sampled ones, or between pixel centres, still counts.
 
-use super::WorldBox;
 use crate::eval::raster::{View, depth_image, rasterize};
 use crate::eval::views::fibonacci_sphere;
 use crate::mesh::Mesh;
@@ -76,13 +75,13 @@ impl OpenViews {
         exposed.len()
     }
 
-    /// Whether no view sees any pixel of box `b` in front of the original.
-    pub fn hides(&self, b: &WorldBox) -> bool {
+    /// Whether no view sees any pixel of these triangles (a box, a quad) in front of the original.
+    pub fn hides(&self, triangles: &[[DVec3; 3]]) -> bool {
         self.views.iter().zip(&self.depths).all(|(view, depth)| {
             let tolerance = view.depth_tolerance();
             let mut hidden = true;
-            for tri in b.triangles() {
-                rasterize(view, &tri, |i, d| hidden &= d >= f64::from(depth[i]) - tolerance);
+            for tri in triangles {
+                rasterize(view, tri, |i, d| hidden &= d >= f64::from(depth[i]) - tolerance);
             }
             hidden
         })

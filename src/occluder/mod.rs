@@ -1,15 +1,85 @@
-//! From inner voxels to an occluder: box expansion, sub-voxel refinement, selection by
-//! silhouette, and the merge into one watertight mesh.
+//! From the solid to an occluder: boxes where it is thick (expansion, sub-voxel refinement,
+//! the merge into one watertight mesh), quads inside it and patches on its surface where it is
+//! thin or flat, and the selection of what covers the most silhouette per triangle.
 
 pub mod boxes;
 pub mod distance;
 pub mod exposure;
 pub mod merge;
+pub mod patches;
+pub mod quads;
+pub mod rectangle;
 pub mod refine;
 pub mod select;
 
-use glam::DVec3;
-use serde::Serialize;
+use crate::mesh::Mesh;
+use glam::{DVec3, Vec3};
+use serde::{Deserialize, Serialize};
+
+/// The kinds of occluder pieces (`cook.shapes`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Shape {
+    /// Boxes of inner voxels, merged into one watertight mesh.
+    Boxes,
+    /// Rectangles on an axis plane, inside the solid over their whole area.
+    Quads,
+    /// Rectangles on flat parts of the surface itself.
+    Patches,
+}
+
+/// A double-sided rectangle: an in-solid quad or an on-surface patch.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Panel {
+    pub shape: Shape,
+    /// The corners, in order around the rectangle.
+    pub corners: [[f64; 3]; 4],
+}
+
+impl Panel {
+    pub fn triangles(&self) -> [[DVec3; 3]; 2] {
+        let c = self.corners.map(DVec3::from_array);
+        [[c[0], c[1], c[2]], [c[0], c[2], c[3]]]
+    }
+
+    pub fn area(&self) -> f64 {
+        let c = self.corners.map(DVec3::from_array);
+        (c[1] - c[0]).length() * (c[3] - c[0]).length()
+    }
+}
+
+/// A cooked occluder: the watertight union of the chosen boxes, and double-sided panels.
+#[derive(Clone, Debug, Default)]
+pub struct Occluder {
+    pub solid: Mesh,
+    pub panels: Vec<Panel>,
+}
+
+impl Occluder {
+    /// Everything as one mesh, as a depth test sees it.
+    pub fn mesh(&self) -> Mesh {
+        let mut mesh = self.solid.clone();
+        mesh.append(&panel_mesh(&self.panels));
+        mesh
+    }
+
+    pub fn triangles(&self) -> usize {
+        self.solid.triangles.len() + 2 * self.panels.len()
+    }
+}
+
+/// The panels as one triangle mesh, two triangles each.
+pub fn panel_mesh(panels: &[Panel]) -> Mesh {
+    Mesh {
+        positions: panels
+            .iter()
+            .flat_map(|p| p.corners.map(|c| Vec3::from_array(c.map(|x| x as f32))))
+            .collect(),
+        triangles: (0..panels.len() as u32)
+            .flat_map(|i| [[4 * i, 4 * i + 1, 4 * i + 2], [4 * i, 4 * i + 2, 4 * i + 3]])
+            .collect(),
+    }
+}
 
 /// The six faces of a box over its corners (corner i has bit 0 for x, 1 for y, 2 for z set at
 /// the maximum), each a counter-clockwise quad seen from outside: -x, +x, -y, +y, -z, +z.

@@ -1,8 +1,8 @@
-//! Choosing boxes by what they add to the silhouette, not by volume: a box enters only when it
-//! covers enough pixels of the original's silhouette that no chosen box covers yet, and the
-//! box that adds the most pixels per triangle of the merged occluder goes first.
+//! Choosing pieces by what they add to the silhouette, not by volume: a box or panel enters only
+//! when it covers enough pixels of the original's silhouette that nothing chosen covers yet, and
+//! the piece that adds the most pixels per triangle of the occluder goes first.
 
-use super::{WorldBox, merge::merge};
+use super::{Panel, WorldBox, merge::merge};
 use crate::eval::raster::{View, coverage_mask};
 use crate::eval::views::fibonacci_sphere;
 use crate::mesh::Mesh;
@@ -13,17 +13,31 @@ const VIEWS: usize = 24;
 const PIXELS: usize = 128;
 /// Candidates, by silhouette gain, whose real triangle cost is measured at each step.
 const LOOKAHEAD: usize = 8;
+/// Rounds of filling the budget and dropping what became redundant.
+const PRUNE_ROUNDS: usize = 4;
 
 pub struct Selection {
-    /// Indices into the candidates, in the order chosen.
-    pub chosen: Vec<usize>,
-    /// Silhouette share each chosen box added.
+    /// Indices into the candidate boxes, in the order chosen.
+    pub boxes: Vec<usize>,
+    /// Indices into the candidate panels, in the order chosen.
+    pub panels: Vec<usize>,
+    /// Silhouette share each chosen piece added, in the order chosen.
     pub gains: Vec<f64>,
-    /// The merged occluder of the chosen boxes, within the triangle budget.
-    pub occluder: Mesh,
+    /// The merged union of the chosen boxes. With two triangles per panel, it stays within the
+    /// triangle budget.
+    pub solid: Mesh,
 }
 
-pub fn select(mesh: &Mesh, candidates: &[WorldBox], max_triangles: usize, min_gain: f64) -> Selection {
+/// Candidates are the boxes, then the panels: index `i` is a box below `boxes.len()`.
+pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: usize, min_gain: f64) -> Selection {
+    if boxes.is_empty() && panels.is_empty() {
+        return Selection {
+            boxes: Vec::new(),
+            panels: Vec::new(),
+            gains: Vec::new(),
+            solid: Mesh::default(),
+        };
+    }
     let (center, radius) = mesh.bounding_sphere();
     let views: Vec<View> = fibonacci_sphere(VIEWS)
         .into_iter()
@@ -34,64 +48,179 @@ pub fn select(mesh: &Mesh, candidates: &[WorldBox], max_triangles: usize, min_ga
         .map(|v| coverage_mask(v, mesh.triangles_f64()))
         .collect();
     let total: u64 = silhouettes.iter().flatten().map(|w| u64::from(w.count_ones())).sum();
-    // masks[box][view]
-    let masks: Vec<Vec<Vec<u64>>> = candidates
+    let shapes: Vec<Vec<[glam::DVec3; 3]>> = boxes
+        .iter()
+        .map(|b| b.triangles().to_vec())
+        .chain(panels.iter().map(|p| p.triangles().to_vec()))
+        .collect();
+    // masks[candidate]: the silhouette pixels it covers, one bit each, all views end to end.
+    let masks: Vec<Vec<u64>> = shapes
         .par_iter()
-        .map(|b| {
+        .map(|triangles| {
             views
                 .iter()
                 .zip(&silhouettes)
-                .map(|(v, s)| {
-                    let m = coverage_mask(v, b.triangles().into_iter());
-                    m.iter().zip(s).map(|(a, b)| a & b).collect()
+                .flat_map(|(v, s)| {
+                    let m = coverage_mask(v, triangles.iter().copied());
+                    m.into_iter().zip(s).map(|(a, b)| a & b).collect::<Vec<u64>>()
                 })
                 .collect()
         })
         .collect();
-    let mut covered: Vec<Vec<u64>> = silhouettes.iter().map(|s| vec![0; s.len()]).collect();
-    let mut selection = Selection {
+    let mut state = State {
+        boxes,
+        masks: &masks,
+        threshold: (min_gain * total as f64).max(1.0),
+        max_triangles,
         chosen: Vec::new(),
-        gains: Vec::new(),
-        occluder: Mesh::default(),
+        solid: Mesh::default(),
     };
-    loop {
-        let gain = |i: usize| -> u64 {
-            masks[i]
-                .iter()
-                .zip(&covered)
-                .flat_map(|(m, c)| m.iter().zip(c).map(|(a, b)| u64::from((a & !b).count_ones())))
-                .sum()
-        };
-        let mut ranked: Vec<(usize, u64)> = (0..candidates.len())
-            .filter(|i| !selection.chosen.contains(i))
-            .map(|i| (i, gain(i)))
-            .filter(|&(_, g)| g as f64 >= min_gain * total as f64 && g > 0)
-            .collect();
-        ranked.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-        // The merge decides what a box really costs: touching boxes share faces, and T-junctions
-        // add vertices. Price the best few by merging them in.
-        let priced = ranked.iter().take(LOOKAHEAD).filter_map(|&(i, g)| {
-            let mut boxes: Vec<WorldBox> = selection.chosen.iter().map(|&c| candidates[c]).collect();
-            boxes.push(candidates[i]);
-            let mesh = merge(&boxes);
-            let added = mesh
-                .triangles
-                .len()
-                .saturating_sub(selection.occluder.triangles.len())
-                .max(1);
-            (mesh.triangles.len() <= max_triangles).then_some((i, g, g as f64 / added as f64, mesh))
-        });
-        let Some((i, pixels, _, mesh)) = priced.max_by(|a, b| a.2.total_cmp(&b.2).then(b.0.cmp(&a.0))) else {
+    for round in 1.. {
+        state.fill();
+        if round == PRUNE_ROUNDS || !state.prune() {
             break;
-        };
-        for (c, m) in covered.iter_mut().zip(&masks[i]) {
-            for (a, b) in c.iter_mut().zip(m) {
-                *a |= b;
+        }
+    }
+    let total = total.max(1) as f64;
+    Selection {
+        boxes: state.chosen.iter().filter(|c| c.0 < boxes.len()).map(|c| c.0).collect(),
+        panels: state
+            .chosen
+            .iter()
+            .filter(|c| c.0 >= boxes.len())
+            .map(|c| c.0 - boxes.len())
+            .collect(),
+        gains: state.chosen.iter().map(|c| c.1 as f64 / total).collect(),
+        solid: state.solid,
+    }
+}
+
+/// The greedy selection as it goes: candidates are the boxes, then the panels.
+struct State<'a> {
+    boxes: &'a [WorldBox],
+    masks: &'a [Vec<u64>],
+    /// Fewest new silhouette pixels that earn a piece its place.
+    threshold: f64,
+    max_triangles: usize,
+    /// (candidate, pixels it added), in the order chosen.
+    chosen: Vec<(usize, u64)>,
+    /// The merged union of the chosen boxes.
+    solid: Mesh,
+}
+
+impl State<'_> {
+    fn triangles(&self) -> usize {
+        self.solid.triangles.len() + 2 * self.chosen.iter().filter(|c| c.0 >= self.boxes.len()).count()
+    }
+
+    fn merged_with(&self, extra: Option<usize>) -> Mesh {
+        let boxes: Vec<WorldBox> = self
+            .chosen
+            .iter()
+            .map(|c| c.0)
+            .chain(extra)
+            .filter(|&i| i < self.boxes.len())
+            .map(|i| self.boxes[i])
+            .collect();
+        merge(&boxes)
+    }
+
+    fn covered(&self) -> Vec<u64> {
+        let mut covered = vec![0u64; self.masks[0].len()];
+        for &(i, _) in &self.chosen {
+            for (c, m) in covered.iter_mut().zip(&self.masks[i]) {
+                *c |= m;
             }
         }
-        selection.chosen.push(i);
-        selection.gains.push(pixels as f64 / total.max(1) as f64);
-        selection.occluder = mesh;
+        covered
     }
-    selection
+
+    /// Adds the piece with the most new pixels per triangle until the budget is spent.
+    fn fill(&mut self) {
+        let mut covered = self.covered();
+        loop {
+            let gain = |i: usize| -> u64 {
+                self.masks[i]
+                    .iter()
+                    .zip(&covered)
+                    .map(|(a, b)| u64::from((a & !b).count_ones()))
+                    .sum()
+            };
+            let mut ranked: Vec<(usize, u64)> = (0..self.masks.len())
+                .filter(|&i| self.chosen.iter().all(|c| c.0 != i))
+                .map(|i| (i, gain(i)))
+                .filter(|&(_, g)| g as f64 >= self.threshold)
+                .collect();
+            ranked.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+            let used = self.triangles();
+            // A panel costs its two triangles. The merge decides what a box really costs:
+            // touching boxes share faces, and T-junctions add vertices; price the best few by
+            // merging them in.
+            let priced_panels = ranked
+                .iter()
+                .filter(|&&(i, _)| i >= self.boxes.len())
+                .filter(|_| used + 2 <= self.max_triangles)
+                .map(|&(i, g)| (i, g, g as f64 / 2.0, None));
+            let priced_boxes = ranked
+                .iter()
+                .filter(|&&(i, _)| i < self.boxes.len())
+                .take(LOOKAHEAD)
+                .filter_map(|&(i, g)| {
+                    let solid = self.merged_with(Some(i));
+                    let added = solid.triangles.len().saturating_sub(self.solid.triangles.len());
+                    (used + added <= self.max_triangles).then(|| (i, g, g as f64 / added.max(1) as f64, Some(solid)))
+                });
+            let best = priced_panels
+                .chain(priced_boxes)
+                .max_by(|a, b| a.2.total_cmp(&b.2).then(b.0.cmp(&a.0)));
+            let Some((i, pixels, _, solid)) = best else {
+                break;
+            };
+            for (c, m) in covered.iter_mut().zip(&self.masks[i]) {
+                *c |= m;
+            }
+            self.chosen.push((i, pixels));
+            if let Some(solid) = solid {
+                self.solid = solid;
+            }
+        }
+    }
+
+    /// Drops pieces that later ones made redundant (no pixel of their own), so that a later
+    /// fill can spend their triangles. Whether any went.
+    fn prune(&mut self) -> bool {
+        let bits = self.masks[0].len() * 64;
+        let mut counts = vec![0u16; bits];
+        let set_bits = |mask: &[u64]| {
+            mask.iter()
+                .enumerate()
+                .flat_map(|(w, &word)| (0..64).filter(move |b| word >> b & 1 == 1).map(move |b| w * 64 + b))
+                .collect::<Vec<usize>>()
+        };
+        let pixels: Vec<Vec<usize>> = self.chosen.iter().map(|c| set_bits(&self.masks[c.0])).collect();
+        for p in pixels.iter().flatten() {
+            counts[*p] += 1;
+        }
+        let mut keep = vec![true; self.chosen.len()];
+        loop {
+            let own = |k: usize| pixels[k].iter().filter(|&&p| counts[p] == 1).count();
+            let Some(k) = (0..self.chosen.len()).find(|&k| keep[k] && own(k) == 0) else {
+                break;
+            };
+            keep[k] = false;
+            for p in &pixels[k] {
+                counts[*p] -= 1;
+            }
+        }
+        if keep.iter().all(|&k| k) {
+            return false;
+        }
+        let mut k = 0;
+        self.chosen.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+        self.solid = self.merged_with(None);
+        true
+    }
 }

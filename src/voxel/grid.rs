@@ -68,6 +68,13 @@ impl Grid {
         self.to_world(DVec3::new(x as f64, y as f64, z as f64) + 0.5)
     }
 
+    /// The index of the voxel holding `p`, if it is on the grid.
+    pub fn containing(&self, p: DVec3) -> Option<usize> {
+        let v = (p - self.origin()) / self.voxel_size;
+        let inside = (0..3).all(|k| v[k] >= 0.0 && (v[k] as usize) < self.dims[k]);
+        inside.then(|| self.index(v.x as usize, v.y as usize, v.z as usize))
+    }
+
     /// The voxels whose closed extent meets the box [lo, hi], clamped to the grid.
     pub fn voxel_range(&self, lo: DVec3, hi: DVec3) -> [Range<usize>; 3] {
         let a = (lo - self.origin()) / self.voxel_size;

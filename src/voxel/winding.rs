@@ -129,8 +129,14 @@ impl<'a> WindingField<'a> {
     }
 
     pub fn winding(&self, p: DVec3) -> f64 {
+        f64::from(self.crossings_above(p).0) + boundary_term(self.mesh, self.boundary, p)
+    }
+
+    /// The crossings of the upward ray from `p`: (signed sum, count). On a closed surface the
+    /// sum is w(p) and the count's parity is the parity test.
+    pub fn crossings_above(&self, p: DVec3) -> (i32, u32) {
         let q = (p.truncate() - self.lo) / self.cell;
-        let mut count = 0i32;
+        let (mut sum, mut count) = (0i32, 0u32);
         if q.x >= 0.0 && q.y >= 0.0 && (q.x as usize) < self.dims[0] && (q.y as usize) < self.dims[1] {
             let b = q.x as usize * self.dims[1] + q.y as usize;
             for &t in &self.triangles[self.offsets[b]..self.offsets[b + 1]] {
@@ -138,10 +144,11 @@ impl<'a> WindingField<'a> {
                 if let Some(hit) = column_hit(&tri, p.truncate())
                     && hit.z > p.z
                 {
-                    count += i32::from(hit.sign);
+                    sum += i32::from(hit.sign);
+                    count += 1;
                 }
             }
         }
-        f64::from(count) + boundary_term(self.mesh, self.boundary, p)
+        (sum, count)
     }
 }

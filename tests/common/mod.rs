@@ -35,9 +35,7 @@ pub fn cuboid(lo: Vec3, hi: Vec3, skip: &[usize]) -> Mesh {
 pub fn concat(parts: &[Mesh]) -> Mesh {
     let mut out = Mesh::default();
     for p in parts {
-        let base = out.positions.len() as u32;
-        out.positions.extend_from_slice(&p.positions);
-        out.triangles.extend(p.triangles.iter().map(|t| t.map(|i| i + base)));
+        out.append(p);
     }
     out
 }

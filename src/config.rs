@@ -45,8 +45,8 @@ pub enum ConfigError {
     WrongType { key: String, expected: String, got: String },
     #[error("setting `{key}` = {value} is out of range: {range}")]
     OutOfRange { key: String, value: String, range: String },
-    #[error("invalid setting: {0}")]
-    Invalid(String),
+    #[error("setting `{key}`: {message}")]
+    Invalid { key: String, message: String },
     #[error("`--set {0}`: expected KEY=VALUE, e.g. cook.resolution=96")]
     BadAssignment(String),
 }
@@ -82,9 +82,11 @@ pub fn load(file: Option<&Path>, overrides: &[(String, Value)]) -> Result<Settin
         cursor.insert(last.to_string(), value.clone());
         overlay(&mut table, &defaults, nested, "")?;
     }
-    let settings: Settings = Value::Table(table)
-        .try_into()
-        .map_err(|e: toml::de::Error| ConfigError::Invalid(e.message().to_string()))?;
+    let settings: Settings =
+        serde_path_to_error::deserialize(Value::Table(table)).map_err(|e| ConfigError::Invalid {
+            key: e.path().to_string(),
+            message: e.inner().message().to_string(),
+        })?;
     validate(&settings)?;
     Ok(settings)
 }

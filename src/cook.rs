@@ -8,6 +8,7 @@ use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_component
 use crate::occluder::{Occluder, Panel, Shape, WorldBox, boxes, exposure::OpenViews, patches, quads, refine, select};
 use crate::voxel::{self, Grid, InsideMethod, surface, winding::WindingField};
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::time::Instant;
 
@@ -137,10 +138,10 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
         solid.iter().zip(&surface.voxels).map(|(&s, &t)| s && !t).collect()
     });
     // Only open meshes can show their inside.
-    let open_views = (!topology.boundary.is_empty()).then(|| timings.time("exposure", || OpenViews::new(&mesh)));
+    let open_views = (!topology.boundary.is_empty()).then(|| timings.time("exposure-render", || OpenViews::new(&mesh)));
     let exposed_voxels = match &open_views {
         None => 0,
-        Some(views) => timings.time("exposure", || views.remove_exposed(&grid, &mut inner)),
+        Some(views) => timings.time("exposure-voxels", || views.remove_exposed(&grid, &mut inner)),
     };
     let inner_count = inner.iter().filter(|&&v| v).count();
     let expansion = boxes::ExpansionSettings {
@@ -183,20 +184,20 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
     });
     // Near an opening a refined face can reach past the solid; such a box falls back to its
     // voxels, and is dropped if even those show.
-    let mut exposed_boxes = 0;
     let candidates: Vec<WorldBox> = match &open_views {
         None => candidates.into_iter().map(|(refined, _)| refined).collect(),
-        Some(views) => timings.time("exposure", || {
+        Some(views) => timings.time("exposure-boxes", || {
             candidates
-                .into_iter()
+                .into_par_iter()
                 .filter_map(|(refined, on_grid)| {
-                    let kept = [refined, on_grid].into_iter().find(|b| views.hides(&b.triangles()));
-                    exposed_boxes += usize::from(kept.is_none());
-                    kept
+                    [refined, on_grid]
+                        .into_iter()
+                        .find(|b| views.hides(&b.triangles(), true))
                 })
                 .collect()
         }),
     };
+    let exposed_boxes = voxel_boxes.len() - candidates.len();
     let (quads, quads_found) = if use_shape(Shape::Quads) {
         let quads = timings.time("quads", || {
             let field = WindingField::new(&mesh, &topology.boundary);
@@ -219,8 +220,11 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
         let found = quads.len();
         let kept: Vec<Panel> = match &open_views {
             None => quads,
-            Some(views) => timings.time("exposure", || {
-                quads.into_iter().filter(|q| views.hides(&q.triangles())).collect()
+            Some(views) => timings.time("exposure-quads", || {
+                quads
+                    .into_par_iter()
+                    .filter(|q| views.hides(&q.triangles(), false))
+                    .collect()
             }),
         };
         (kept, found)

@@ -1,5 +1,6 @@
 //! Coverage, false pixels and outside samples, as DESIGN.md defines them.
 
+use super::proximity::SurfaceIndex;
 use super::raster::{View, depth_image};
 use super::views::fibonacci_sphere;
 use crate::mesh::{BoundaryEdge, Mesh};
@@ -43,7 +44,8 @@ pub struct Quality {
     pub false_pixels_non_below: u64,
     pub views: usize,
     pub views_non_below: usize,
-    /// Share of points sampled on the occluder where the original's winding number is < 0.5.
+    /// Share of points sampled on the occluder where the original's winding number is < 0.5,
+    /// leaving out points on the original's surface (within 1e-4 of its size).
     pub outside_samples: f64,
     pub samples: usize,
     pub occluder_triangles: usize,
@@ -71,8 +73,8 @@ pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, set
     let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = views
         .par_iter()
         .map(|view| {
-            let m = depth_image(view, original.triangles_f64());
-            let o = depth_image(view, occluder.triangles_f64());
+            let m = depth_image(view, original);
+            let o = depth_image(view, occluder);
             let tolerance = view.depth_tolerance() as f32;
             let (mut both, mut seen, mut false_pixels) = (0u64, 0u64, 0u64);
             for (dm, d_o) in m.iter().zip(&o) {
@@ -92,7 +94,12 @@ pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, set
     let n = seen.len().max(1) as f64;
     let samples = sample_surface(occluder, settings.outside_samples);
     let field = WindingField::new(original, boundary);
-    let outside = samples.par_iter().filter(|&&p| field.winding(p) < 0.5).count();
+    // A point on the original's surface (a patch) is on the solid's boundary, not outside it.
+    let surface = SurfaceIndex::new(original, 2e-4 * radius);
+    let outside = samples
+        .par_iter()
+        .filter(|&&p| field.winding(p) < 0.5 && !surface.on_surface(p))
+        .count();
     Quality {
         coverage: seen.iter().sum::<f64>() / n,
         coverage_min: seen.iter().copied().fold(1.0, f64::min),

@@ -2,6 +2,7 @@
 //! outside samples, triangles.
 
 pub mod metrics;
+pub mod proximity;
 pub mod raster;
 pub mod views;
 

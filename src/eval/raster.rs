@@ -1,6 +1,7 @@
 //! Software rasterization at pixel centres: depth images of meshes and coverage masks of boxes,
 //! through orthographic cameras around a mesh or perspective cameras inside it.
 
+use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
 
 #[derive(Clone, Copy, Debug)]
@@ -126,22 +127,30 @@ pub fn rasterize(view: &View, tri: &[DVec3; 3], mut visit: impl FnMut(usize, f64
 /// on screen), with `depth` turning the interpolated value into a depth.
 fn fill(view: &View, p: [DVec3; 3], depth: impl Fn(f64) -> f64, visit: &mut impl FnMut(usize, f64)) {
     let q = p.map(|v| v.truncate());
+    let lo = q[0].min(q[1]).min(q[2]);
+    let hi = q[0].max(q[1]).max(q[2]);
+    let n = view.pixels as f64;
+    // The pixels i whose centres i + 0.5 lie in [lo, hi]. Most triangles of a detailed mesh
+    // cover no centre at all, so this comes first, without rounding calls.
+    let centres = |lo: f64, hi: f64| -> Option<(usize, usize)> {
+        let (a, b) = ((lo - 0.5).max(0.0), (hi - 0.5).min(n - 1.0));
+        // Also rejects NaN.
+        if a.partial_cmp(&b).is_none_or(|o| o.is_gt()) {
+            return None;
+        }
+        let first = a as usize + usize::from((a as usize as f64) < a);
+        let last = b as usize;
+        (first <= last).then_some((first, last))
+    };
+    let (Some((x0, x1)), Some((y0, y1))) = (centres(lo.x, hi.x), centres(lo.y, hi.y)) else {
+        return;
+    };
     let area = cross(q[1] - q[0], q[2] - q[0]);
     if area == 0.0 || !area.is_finite() {
         return;
     }
-    let n = view.pixels as f64;
-    let lo = q[0].min(q[1]).min(q[2]);
-    let hi = q[0].max(q[1]).max(q[2]);
-    let x0 = (lo.x - 0.5).ceil().max(0.0) as usize;
-    let y0 = (lo.y - 0.5).ceil().max(0.0) as usize;
-    let x1 = (hi.x - 0.5).floor().min(n - 1.0);
-    let y1 = (hi.y - 0.5).floor().min(n - 1.0);
-    if x1 < 0.0 || y1 < 0.0 {
-        return;
-    }
-    for y in y0..=y1 as usize {
-        for x in x0..=x1 as usize {
+    for y in y0..=y1 {
+        for x in x0..=x1 {
             let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
             let w0 = cross(q[2] - q[1], c - q[1]) / area;
             let w1 = cross(q[0] - q[2], c - q[2]) / area;
@@ -157,20 +166,34 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
     a.x * b.y - a.y * b.x
 }
 
-/// The nearest depth per pixel, `f32::INFINITY` where nothing is drawn.
-pub fn depth_image(view: &View, triangles: impl Iterator<Item = [DVec3; 3]>) -> Vec<f32> {
-    let mut depth = vec![f32::INFINITY; view.pixels * view.pixels];
-    for tri in triangles {
-        rasterize(view, &tri, |i, d| depth[i] = depth[i].min(d as f32));
+/// Calls `visit(pixel index, depth)` for every pixel centre each triangle of `mesh` covers.
+/// Orthographic views project each vertex once.
+pub fn rasterize_mesh(view: &View, mesh: &Mesh, mut visit: impl FnMut(usize, f64)) {
+    match view.lens {
+        Lens::Orthographic { .. } => {
+            let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
+            for t in &mesh.triangles {
+                fill(view, t.map(|i| projected[i as usize]), |d| d, &mut visit);
+            }
+        }
+        Lens::Perspective { .. } => {
+            for tri in mesh.triangles_f64() {
+                rasterize(view, &tri, &mut visit);
+            }
+        }
     }
+}
+
+/// The nearest depth per pixel, `f32::INFINITY` where nothing is drawn.
+pub fn depth_image(view: &View, mesh: &Mesh) -> Vec<f32> {
+    let mut depth = vec![f32::INFINITY; view.pixels * view.pixels];
+    rasterize_mesh(view, mesh, |i, d| depth[i] = depth[i].min(d as f32));
     depth
 }
 
 /// A coverage bitmask, one bit per pixel.
-pub fn coverage_mask(view: &View, triangles: impl Iterator<Item = [DVec3; 3]>) -> Vec<u64> {
+pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
     let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
-    for tri in triangles {
-        rasterize(view, &tri, |i, _| mask[i / 64] |= 1 << (i % 64));
-    }
+    rasterize_mesh(view, mesh, |i, _| mask[i / 64] |= 1 << (i % 64));
     mask
 }

@@ -19,9 +19,14 @@ use rayon::prelude::*;
 const DIRECTIONS: usize = 256;
 const PIXELS: usize = 256;
 
+/// Pixels per side of the tiles whose farthest depth gives a quick "hidden" answer.
+const TILE: usize = 8;
+
 pub struct OpenViews {
     views: Vec<View>,
     depths: Vec<Vec<f32>>,
+    /// Per view, the farthest depth of each TILE × TILE tile of `depths`.
+    tiles: Vec<Vec<f32>>,
 }
 
 impl OpenViews {
@@ -32,11 +37,12 @@ impl OpenViews {
             .filter(|d| d.y >= 0.0)
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
-        let depths = views
+        let depths: Vec<Vec<f32>> = views
             .par_iter()
-            .map(|v| farthest_nearby(&depth_image(v, mesh.triangles_f64()), v.pixels))
+            .map(|v| farthest_nearby(&depth_image(v, mesh), v.pixels))
             .collect();
-        OpenViews { views, depths }
+        let tiles = depths.iter().map(|d| farthest_per_tile(d, PIXELS)).collect();
+        OpenViews { views, depths, tiles }
     }
 
     /// Whether some view sees point `p` in front of the original's surface.
@@ -53,21 +59,30 @@ impl OpenViews {
 
     /// Clears the voxels of `inner` that a view sees at one of their corners.
     pub fn remove_exposed(&self, grid: &Grid, inner: &mut [bool]) -> usize {
-        let exposed: Vec<usize> = (0..inner.len())
-            .into_par_iter()
-            .filter(|&i| inner[i])
-            .filter(|&i| {
-                let [x, y, z] = grid.coords(i);
-                let corners = (0..8).map(|c| {
-                    grid.to_world(DVec3::new(
-                        (x + (c & 1)) as f64,
-                        (y + ((c >> 1) & 1)) as f64,
-                        (z + ((c >> 2) & 1)) as f64,
-                    ))
-                });
-                let corners: Vec<DVec3> = corners.collect();
-                (0..self.views.len()).any(|v| corners.iter().any(|&p| self.sees(v, p)))
+        // Neighbouring voxels share corners: test each corner once.
+        let [_, ny, nz] = grid.dims;
+        let corner = |x: usize, y: usize, z: usize| (x * (ny + 1) + y) * (nz + 1) + z;
+        let corners_of = |i: usize| {
+            let [x, y, z] = grid.coords(i);
+            (0..8).map(move |c| corner(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1)))
+        };
+        let mut needed = vec![false; grid.dims.iter().map(|d| d + 1).product()];
+        for i in (0..inner.len()).filter(|&i| inner[i]) {
+            for c in corners_of(i) {
+                needed[c] = true;
+            }
+        }
+        let seen: Vec<bool> = needed
+            .par_iter()
+            .enumerate()
+            .map(|(c, &needed)| {
+                let (x, y, z) = (c / ((ny + 1) * (nz + 1)), (c / (nz + 1)) % (ny + 1), c % (nz + 1));
+                let p = grid.to_world(DVec3::new(x as f64, y as f64, z as f64));
+                needed && (0..self.views.len()).any(|v| self.sees(v, p))
             })
+            .collect();
+        let exposed: Vec<usize> = (0..inner.len())
+            .filter(|&i| inner[i] && corners_of(i).any(|c| seen[c]))
             .collect();
         for &i in &exposed {
             inner[i] = false;
@@ -75,17 +90,58 @@ impl OpenViews {
         exposed.len()
     }
 
-    /// Whether no view sees any pixel of these triangles (a box, a quad) in front of the original.
-    pub fn hides(&self, triangles: &[[DVec3; 3]]) -> bool {
-        self.views.iter().zip(&self.depths).all(|(view, depth)| {
-            let tolerance = view.depth_tolerance();
-            let mut hidden = true;
-            for tri in triangles {
-                rasterize(view, tri, |i, d| hidden &= d >= f64::from(depth[i]) - tolerance);
-            }
-            hidden
+    /// Whether no view sees any pixel of these triangles (a box, a quad) in front of the
+    /// original. With `closed_convex` (a box), faces turned away from a view are skipped: the
+    /// faces turned towards it cover them.
+    pub fn hides(&self, triangles: &[[DVec3; 3]], closed_convex: bool) -> bool {
+        (0..self.views.len()).all(|v| {
+            let view = &self.views[v];
+            triangles
+                .iter()
+                .filter(|t| !closed_convex || (t[1] - t[0]).cross(t[2] - t[0]).dot(view.dir) > 0.0)
+                .all(|t| self.hides_triangle(v, t))
         })
     }
+
+    fn hides_triangle(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
+        let (view, depth) = (&self.views[v], &self.depths[v]);
+        let tolerance = view.depth_tolerance();
+        // Quick answer: the nearest corner lies behind the farthest depth of every tile under
+        // the triangle's screen bounds.
+        let corners = triangle.map(|p| view.project(p));
+        let lo = corners[0].min(corners[1]).min(corners[2]);
+        let hi = corners[0].max(corners[1]).max(corners[2]);
+        let tiles = PIXELS / TILE;
+        let range = |a: f64, b: f64| {
+            let a = ((a - 0.5) / TILE as f64).floor().clamp(0.0, (tiles - 1) as f64) as usize;
+            let b = ((b + 0.5) / TILE as f64).floor().clamp(0.0, (tiles - 1) as f64) as usize;
+            a..=b
+        };
+        let farthest = range(lo.y, hi.y)
+            .flat_map(|ty| range(lo.x, hi.x).map(move |tx| ty * tiles + tx))
+            .map(|t| self.tiles[v][t])
+            .fold(0f32, f32::max);
+        let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
+        if on_screen && lo.z >= f64::from(farthest) - tolerance {
+            return true;
+        }
+        let mut hidden = true;
+        rasterize(view, triangle, |i, d| hidden &= d >= f64::from(depth[i]) - tolerance);
+        hidden
+    }
+}
+
+/// The farthest depth of each TILE × TILE tile.
+fn farthest_per_tile(depth: &[f32], n: usize) -> Vec<f32> {
+    let tiles = n / TILE;
+    let mut out = vec![0f32; tiles * tiles];
+    for y in 0..n {
+        for x in 0..n {
+            let t = (y / TILE) * tiles + x / TILE;
+            out[t] = out[t].max(depth[y * n + x]);
+        }
+    }
+    out
 }
 
 /// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty).

@@ -122,14 +122,19 @@ pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -
 /// For every cell, the gaps between blocked height ranges whose cross-section is inside.
 fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -> bool + Sync)) -> Vec<Vec<Gap>> {
     let nv = g.dims[1];
-    let mut blocked: Vec<(u32, f64, f64)> = (0..mesh.triangles.len())
+    let cells = g.dims[0] * nv;
+    let blocked: Vec<(u32, f64, f64)> = (0..mesh.triangles.len())
         .into_par_iter()
-        .flat_map_iter(|t| {
+        .fold(Vec::new, |mut out, t| {
             let tri = mesh.corners(t).map(|p| g.uv(p.as_dvec3()));
             let lo = |k: usize| tri.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
             let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
             let (ru, rv) = (g.range(0, lo(0), hi(0)), g.range(1, lo(1), hi(1)));
-            let mut out = Vec::new();
+            if ru.len() == 1 && rv.len() == 1 {
+                // Wholly inside one cell: no clipping.
+                out.push(((ru.start * nv + rv.start) as u32, lo(2), hi(2)));
+                return out;
+            }
             for u in ru {
                 for v in rv.clone() {
                     let u0 = g.origin[0] + u as f64 * g.cell;
@@ -141,19 +146,36 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
             }
             out
         })
-        .collect();
-    blocked.par_sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
-    let mut starts = vec![0usize; g.dims[0] * nv + 1];
+        .reduce(Vec::new, |mut a, mut b| {
+            a.append(&mut b);
+            a
+        });
+    // Counting sort by cell.
+    let mut starts = vec![0usize; cells + 1];
     for &(c, _, _) in &blocked {
         starts[c as usize + 1] += 1;
     }
-    for c in 0..g.dims[0] * nv {
+    for c in 0..cells {
         starts[c + 1] += starts[c];
     }
-    (0..g.dims[0] * nv)
+    let mut ranges = vec![(0.0f64, 0.0f64); blocked.len()];
+    let mut next = starts.clone();
+    for &(c, t0, t1) in &blocked {
+        ranges[next[c as usize]] = (t0, t1);
+        next[c as usize] += 1;
+    }
+    let mut by_cell: Vec<&mut [(f64, f64)]> = Vec::with_capacity(cells);
+    let mut rest = ranges.as_mut_slice();
+    for c in 0..cells {
+        let (head, tail) = rest.split_at_mut(starts[c + 1] - starts[c]);
+        by_cell.push(head);
+        rest = tail;
+    }
+    by_cell
         .into_par_iter()
-        .map(|c| {
-            let ranges = &blocked[starts[c]..starts[c + 1]];
+        .enumerate()
+        .map(|(c, ranges)| {
+            ranges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
             let (u, v) = (c / nv, c % nv);
             let center = [
                 g.origin[0] + (u as f64 + 0.5) * g.cell,
@@ -161,7 +183,7 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
             ];
             let mut gaps = Vec::new();
             let mut top = f64::NEG_INFINITY;
-            for &(_, t0, t1) in ranges {
+            for &(t0, t1) in ranges.iter() {
                 if top > f64::NEG_INFINITY && t0 - top > 2.0 * margin {
                     let mid = 0.5 * (top + t0);
                     if inside(g.point(center[0], center[1], mid)) {

@@ -2,7 +2,7 @@
 //! when it covers enough pixels of the original's silhouette that nothing chosen covers yet, and
 //! the piece that adds the most pixels per triangle of the occluder goes first.
 
-use super::{Panel, WorldBox, merge::merge};
+use super::{Panel, WorldBox, merge::merge, panel_mesh};
 use crate::eval::raster::{View, coverage_mask};
 use crate::eval::views::fibonacci_sphere;
 use crate::mesh::Mesh;
@@ -43,33 +43,37 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: 
         .into_iter()
         .map(|d| View::new(d, center, radius, PIXELS))
         .collect();
-    let silhouettes: Vec<Vec<u64>> = views
-        .par_iter()
-        .map(|v| coverage_mask(v, mesh.triangles_f64()))
-        .collect();
+    let silhouettes: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh)).collect();
     let total: u64 = silhouettes.iter().flatten().map(|w| u64::from(w.count_ones())).sum();
-    let shapes: Vec<Vec<[glam::DVec3; 3]>> = boxes
+    let shapes: Vec<Mesh> = boxes
         .iter()
-        .map(|b| b.triangles().to_vec())
-        .chain(panels.iter().map(|p| p.triangles().to_vec()))
+        .map(|b| merge(std::slice::from_ref(b)))
+        .chain(panels.iter().map(|p| panel_mesh(std::slice::from_ref(p))))
         .collect();
-    // masks[candidate]: the silhouette pixels it covers, one bit each, all views end to end.
-    let masks: Vec<Vec<u64>> = shapes
+    let words: usize = silhouettes.iter().map(Vec::len).sum();
+    // masks[candidate]: the silhouette pixels it covers, one bit each, all views end to end,
+    // as its nonzero words: a piece covers a small part of the silhouette.
+    let masks: Vec<SparseMask> = shapes
         .par_iter()
-        .map(|triangles| {
-            views
-                .iter()
-                .zip(&silhouettes)
-                .flat_map(|(v, s)| {
-                    let m = coverage_mask(v, triangles.iter().copied());
-                    m.into_iter().zip(s).map(|(a, b)| a & b).collect::<Vec<u64>>()
-                })
-                .collect()
+        .map(|shape| {
+            let mut offset = 0;
+            let mut mask = Vec::new();
+            for (v, s) in views.iter().zip(&silhouettes) {
+                let m = coverage_mask(v, shape);
+                for (w, (a, b)) in m.into_iter().zip(s).enumerate() {
+                    if a & b != 0 {
+                        mask.push(((offset + w) as u32, a & b));
+                    }
+                }
+                offset += s.len();
+            }
+            mask
         })
         .collect();
     let mut state = State {
         boxes,
         masks: &masks,
+        words,
         threshold: (min_gain * total as f64).max(1.0),
         max_triangles,
         chosen: Vec::new(),
@@ -95,10 +99,15 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: 
     }
 }
 
+/// The nonzero words of a bitmask: (word index, bits).
+type SparseMask = Vec<(u32, u64)>;
+
 /// The greedy selection as it goes: candidates are the boxes, then the panels.
 struct State<'a> {
     boxes: &'a [WorldBox],
-    masks: &'a [Vec<u64>],
+    masks: &'a [SparseMask],
+    /// Words of a dense mask.
+    words: usize,
     /// Fewest new silhouette pixels that earn a piece its place.
     threshold: f64,
     max_triangles: usize,
@@ -126,10 +135,10 @@ impl State<'_> {
     }
 
     fn covered(&self) -> Vec<u64> {
-        let mut covered = vec![0u64; self.masks[0].len()];
+        let mut covered = vec![0u64; self.words];
         for &(i, _) in &self.chosen {
-            for (c, m) in covered.iter_mut().zip(&self.masks[i]) {
-                *c |= m;
+            for &(w, bits) in &self.masks[i] {
+                covered[w as usize] |= bits;
             }
         }
         covered
@@ -142,8 +151,7 @@ impl State<'_> {
             let gain = |i: usize| -> u64 {
                 self.masks[i]
                     .iter()
-                    .zip(&covered)
-                    .map(|(a, b)| u64::from((a & !b).count_ones()))
+                    .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
                     .sum()
             };
             let mut ranked: Vec<(usize, u64)> = (0..self.masks.len())
@@ -176,8 +184,8 @@ impl State<'_> {
             let Some((i, pixels, _, solid)) = best else {
                 break;
             };
-            for (c, m) in covered.iter_mut().zip(&self.masks[i]) {
-                *c |= m;
+            for &(w, bits) in &self.masks[i] {
+                covered[w as usize] |= bits;
             }
             self.chosen.push((i, pixels));
             if let Some(solid) = solid {
@@ -189,12 +197,14 @@ impl State<'_> {
     /// Drops pieces that later ones made redundant (no pixel of their own), so that a later
     /// fill can spend their triangles. Whether any went.
     fn prune(&mut self) -> bool {
-        let bits = self.masks[0].len() * 64;
-        let mut counts = vec![0u16; bits];
-        let set_bits = |mask: &[u64]| {
+        let mut counts = vec![0u16; self.words * 64];
+        let set_bits = |mask: &SparseMask| {
             mask.iter()
-                .enumerate()
-                .flat_map(|(w, &word)| (0..64).filter(move |b| word >> b & 1 == 1).map(move |b| w * 64 + b))
+                .flat_map(|&(w, word)| {
+                    (0..64)
+                        .filter(move |b| word >> b & 1 == 1)
+                        .map(move |b| w as usize * 64 + b)
+                })
                 .collect::<Vec<usize>>()
         };
         let pixels: Vec<Vec<usize>> = self.chosen.iter().map(|c| set_bits(&self.masks[c.0])).collect();

@@ -21,6 +21,7 @@ const PIXELS: usize = 256;
 
 /// Pixels per side of the tiles whose farthest depth gives a quick "hidden" answer.
 const TILE: usize = 8;
+const R: usize = 1;
 
 pub struct OpenViews {
     views: Vec<View>,
@@ -150,8 +151,8 @@ fn farthest_nearby(depth: &[f32], n: usize) -> Vec<f32> {
     for y in 0..n {
         for x in 0..n {
             let mut far = 0f32;
-            for ny in y.saturating_sub(1)..=(y + 1).min(n - 1) {
-                for nx in x.saturating_sub(1)..=(x + 1).min(n - 1) {
+            for ny in y.saturating_sub(R)..=(y + R).min(n - 1) {
+                for nx in x.saturating_sub(R)..=(x + R).min(n - 1) {
                     far = far.max(depth[ny * n + nx]);
                 }
             }

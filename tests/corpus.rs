@@ -3,7 +3,9 @@
 
 mod common;
 use occluder_cook::cook::cook;
-use occluder_cook::mesh::load_file;
+use occluder_cook::eval::{Quality, ViewSet, evaluate};
+use occluder_cook::mesh::{load_file, topology::orient_closed_components};
+use std::path::Path;
 
 const CLOSED: [&str; 5] = ["spot.obj", "cow.obj", "fandisk.obj", "homer.obj", "duck.glb"];
 const OPEN: [&str; 5] = [
@@ -14,11 +16,16 @@ const OPEN: [&str; 5] = [
     "kenney-building-garage.glb",
 ];
 
-fn cook_corpus_mesh(name: &str) -> Option<occluder_cook::eval::Quality> {
-    let corpus = common::corpus()?;
-    let (mesh, stats) = load_file(&corpus.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+fn cook_corpus_mesh(name: &str) -> Option<Quality> {
+    Some(cook_file(&common::corpus()?.join(name)).0)
+}
+
+/// Cooks with evaluation; returns the quality and the cooked occluder.
+fn cook_file(path: &Path) -> (Quality, occluder_cook::cook::Cooked) {
+    let name = path.file_name().unwrap().to_string_lossy().to_string();
+    let (mesh, stats) = load_file(path).unwrap_or_else(|e| panic!("{name}: {e}"));
     let cooked = cook(mesh, stats, 0.0, &common::defaults(), true);
-    let q = cooked.report.quality.expect("evaluated");
+    let q = cooked.report.quality.clone().expect("evaluated");
     println!(
         "{name}: {} triangles, coverage {:.1}%, false pixels {} / {} non-below, outside {:.2}%",
         q.occluder_triangles,
@@ -27,8 +34,7 @@ fn cook_corpus_mesh(name: &str) -> Option<occluder_cook::eval::Quality> {
         q.false_pixels_non_below,
         q.outside_samples * 100.0
     );
-    assert!(q.occluder_triangles <= 256, "{name}");
-    Some(q)
+    (q, cooked)
 }
 
 #[test]
@@ -37,7 +43,8 @@ fn closed_meshes_have_no_false_pixels() {
         let Some(q) = cook_corpus_mesh(name) else { return };
         assert_eq!(q.false_pixels, 0, "{name}");
         assert_eq!(q.outside_samples, 0.0, "{name}");
-        assert!(q.coverage > 0.6, "{name}: coverage {}", q.coverage);
+        assert!(q.occluder_triangles <= 256, "{name}");
+        assert!(q.coverage >= 0.8, "{name}: coverage {}", q.coverage);
     }
 }
 
@@ -49,12 +56,44 @@ fn open_meshes_have_no_false_pixels_from_above() {
     }
 }
 
-/// Known failure: a few pixels of one near-horizontal view see a box through the bunny's bottom
-/// holes, which the exposure test's sampled views miss. Run with `--ignored` to see the count.
+/// Known failure: a few pixels of two low views see pieces through the bunny's bottom holes,
+/// which the exposure test's sampled directions miss. Run with `--ignored` to see the count.
 #[test]
-#[ignore = "bunny-holes still shows a few false pixels in one non-below view"]
+#[ignore = "bunny-holes still shows a few false pixels in two non-below views"]
 fn bunny_holes_has_no_false_pixels_from_above() {
     if let Some(q) = cook_corpus_mesh("bunny-holes.obj") {
         assert_eq!(q.false_pixels_non_below, 0);
     }
+}
+
+/// A room of walls 0.05 thick: a few quads cover it, from outside and from its centre.
+#[test]
+fn room_gets_few_quads_and_no_false_pixels() {
+    let Some(levels) = common::levels() else { return };
+    let path = levels.join("godot-rooms/room.glb");
+    let (q, cooked) = cook_file(&path);
+    assert!(q.occluder_triangles <= 48, "{q:?}");
+    assert_eq!(q.false_pixels, 0);
+    assert!(q.coverage >= 0.95, "coverage {}", q.coverage);
+    let (mut mesh, _) = load_file(&path).unwrap();
+    let topology = orient_closed_components(&mut mesh);
+    let mut settings = common::defaults().eval;
+    settings.view_set = ViewSet::Inside;
+    let inside = evaluate(&mesh, &topology.boundary, &cooked.occluder.mesh(), &settings);
+    println!(
+        "room from its centre: coverage {:.1}%, false pixels {}",
+        inside.coverage * 100.0,
+        inside.false_pixels
+    );
+    assert_eq!(inside.false_pixels, 0);
+    assert!(inside.coverage >= 0.9, "coverage from inside {}", inside.coverage);
+}
+
+/// A whole level as one polygon soup: patches on its flat parts.
+#[test]
+fn pandora_as_one_mesh_gets_a_conservative_occluder() {
+    let Some(levels) = common::levels() else { return };
+    let (q, _) = cook_file(&levels.join("pandora/pandora.obj"));
+    assert!(q.occluder_triangles > 0 && q.occluder_triangles <= 2000, "{q:?}");
+    assert_eq!(q.false_pixels_non_below, 0);
 }

@@ -52,16 +52,25 @@ pub fn cook_evaluated(mesh: Mesh) -> Cooked {
     cook(mesh, IngestStats::default(), 0.0, &defaults(), true)
 }
 
-/// The shared corpus, or None (with a message saying so) when it is absent.
+/// The shared corpus of meshes, or None (with a message saying so) when it is absent.
 pub fn corpus() -> Option<PathBuf> {
-    let dir = std::env::var_os("OCCLUDER_CORPUS")
+    shared_dir("OCCLUDER_CORPUS", "meshes")
+}
+
+/// The shared levels, or None (with a message saying so) when they are absent.
+pub fn levels() -> Option<PathBuf> {
+    shared_dir("OCCLUDER_LEVELS", "levels")
+}
+
+fn shared_dir(variable: &str, folder: &str) -> Option<PathBuf> {
+    let dir = std::env::var_os(variable)
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes"));
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared").join(folder));
     if dir.is_dir() {
         Some(dir)
     } else {
         eprintln!(
-            "corpus not found at {}: set OCCLUDER_CORPUS to run the corpus tests; skipping",
+            "{folder} not found at {}: set {variable} to run the tests that need them; skipping",
             dir.display()
         );
         None

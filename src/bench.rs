@@ -39,18 +39,20 @@ pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
 /// Cooks and evaluates every file, printing a row as each finishes.
 pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
     println!(
-        "{:<34} {:>7} {:>6} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<34} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "mesh",
         "tris_in",
         "tris",
         "boxes",
+        "quads",
+        "ptchs",
         "coverage",
         "false",
         "false_nb",
         "outside",
         "surf_ms",
         "inside_ms",
-        "boxes_ms",
+        "pieces_ms",
         "cook_ms",
         "eval_ms"
     );
@@ -91,18 +93,20 @@ fn print_row(name: &str, r: &Report) {
     let t = &r.timings_ms;
     let cook_ms = t.total() - t.get("eval");
     println!(
-        "{:<34} {:>7} {:>6} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
+        "{:<34} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
         name,
         r.input.triangles,
         r.occluder.triangles,
-        r.boxes.kept,
+        r.occluder.boxes,
+        r.occluder.quads,
+        r.occluder.patches,
         q.coverage * 100.0,
         q.false_pixels,
         q.false_pixels_non_below,
         q.outside_samples * 100.0,
         t.get("surface"),
         t.get("inside"),
-        t.get("boxes") + t.get("refine") + t.get("select+merge"),
+        ["boxes", "refine", "quads", "patches", "select+merge"].iter().map(|s| t.get(s)).sum::<f64>(),
         cook_ms,
         t.get("eval"),
     );

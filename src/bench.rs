@@ -106,7 +106,10 @@ fn print_row(name: &str, r: &Report) {
         q.outside_samples * 100.0,
         t.get("surface"),
         t.get("inside"),
-        ["boxes", "refine", "quads", "patches", "select+merge"].iter().map(|s| t.get(s)).sum::<f64>(),
+        ["boxes", "refine", "quads", "patches", "select+merge"]
+            .iter()
+            .map(|s| t.get(s))
+            .sum::<f64>(),
         cook_ms,
         t.get("eval"),
     );

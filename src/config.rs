@@ -16,6 +16,32 @@ pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
 pub struct Settings {
     pub cook: CookSettings,
     pub eval: EvalSettings,
+    pub service: ServiceSettings,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ServiceSettings {
+    pub listen: String,
+    pub workers: usize,
+    pub data_dir: String,
+    pub max_body_bytes: usize,
+    pub max_queue: usize,
+    pub max_cache_bytes: u64,
+}
+
+impl ServiceSettings {
+    /// `data_dir`, or the per-user default when it is empty.
+    pub fn data_dir(&self) -> std::path::PathBuf {
+        if !self.data_dir.is_empty() {
+            return self.data_dir.clone().into();
+        }
+        let base = std::env::var_os("XDG_DATA_HOME")
+            .map(std::path::PathBuf::from)
+            .or_else(|| std::env::var_os("HOME").map(|h| std::path::PathBuf::from(h).join(".local/share")))
+            .unwrap_or_else(|| ".".into());
+        base.join("occluder-cook")
+    }
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -67,6 +93,17 @@ pub fn load(file: Option<&Path>, overrides: &[(String, Value)]) -> Result<Settin
             .map_err(|e: toml::de::Error| read_error(e.message().to_string()))?;
         overlay(&mut table, &defaults, file_table, "")?;
     }
+    finish(table, &defaults, overrides)
+}
+
+/// `base` with `key=value` overrides, checked like [`load`]'s.
+pub fn load_over(base: &Settings, overrides: &[(String, Value)]) -> Result<Settings, ConfigError> {
+    let defaults: Table = DEFAULT_TOML.parse().expect("the built-in defaults parse");
+    let table = Table::try_from(base).expect("settings serialize to TOML");
+    finish(table, &defaults, overrides)
+}
+
+fn finish(mut table: Table, defaults: &Table, overrides: &[(String, Value)]) -> Result<Settings, ConfigError> {
     for (key, value) in overrides {
         let mut nested = Table::new();
         let parts: Vec<&str> = key.split('.').collect();
@@ -80,7 +117,7 @@ pub fn load(file: Option<&Path>, overrides: &[(String, Value)]) -> Result<Settin
                 .expect("just inserted a table");
         }
         cursor.insert(last.to_string(), value.clone());
-        overlay(&mut table, &defaults, nested, "")?;
+        overlay(&mut table, defaults, nested, "")?;
     }
     let settings: Settings =
         serde_path_to_error::deserialize(Value::Table(table)).map_err(|e| ConfigError::Invalid {
@@ -171,6 +208,17 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.quad_grid", c.quad_grid as f64, 8.0, 4096.0)?;
     check("cook.min_patch_area", c.min_patch_area, 0.0, 1.0)?;
     check("eval.views", e.views as f64, 1.0, 4096.0)?;
+    let v = &s.service;
+    check("service.workers", v.workers as f64, 1.0, 256.0)?;
+    check("service.max_body_bytes", v.max_body_bytes as f64, 1024.0, 4e9)?;
+    check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
+    if v.listen.parse::<std::net::SocketAddr>().is_err() {
+        return Err(ConfigError::OutOfRange {
+            key: "service.listen".into(),
+            value: v.listen.clone(),
+            range: "expected an address and port, e.g. 127.0.0.1:8650".into(),
+        });
+    }
     check("eval.pixels", e.pixels as f64, 16.0, 4096.0)?;
     check("eval.outside_samples", e.outside_samples as f64, 0.0, 10_000_000.0)?;
     Ok(())

@@ -4,7 +4,7 @@
 use crate::config::Settings;
 use crate::eval::{Quality, evaluate};
 use crate::key::{PIPELINE_VERSION, cache_key};
-use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_components};
+use crate::mesh::{IngestStats, Mesh, Topology, glb, topology::orient_closed_components};
 use crate::occluder::{Occluder, Panel, Shape, WorldBox, boxes, exposure::OpenViews, patches, quads, refine, select};
 use crate::voxel::{self, Grid, InsideMethod, surface, winding::WindingField};
 use glam::DVec3;
@@ -27,19 +27,52 @@ impl Serialize for Timings {
     }
 }
 
-impl Timings {
+/// The stages of a cook, in order, for progress reports.
+pub const STAGES: [&str; 16] = [
+    "ingest",
+    "key",
+    "orient",
+    "surface",
+    "inside",
+    "inner",
+    "exposure-render",
+    "exposure-voxels",
+    "boxes",
+    "refine",
+    "exposure-boxes",
+    "quads",
+    "exposure-quads",
+    "patches",
+    "select+merge",
+    "eval",
+];
+
+/// Told each stage as it starts, with the share of the stages done (0..1).
+pub type Progress<'a> = &'a (dyn Fn(&str, f64) + Sync);
+
+/// Times the stages and reports each as it starts.
+struct Clock<'a> {
+    timings: Timings,
+    progress: Progress<'a>,
+}
+
+impl Clock<'_> {
     fn time<T>(&mut self, stage: &str, f: impl FnOnce() -> T) -> T {
+        let done = STAGES.iter().position(|s| *s == stage).unwrap_or(0);
+        (self.progress)(stage, done as f64 / STAGES.len() as f64);
         let start = Instant::now();
         let out = f();
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        // A stage that runs in several places (exposure) adds up under one name.
-        match self.0.iter_mut().find(|(s, _)| s == stage) {
+        // A stage that runs in several places adds up under one name.
+        match self.timings.0.iter_mut().find(|(s, _)| s == stage) {
             Some((_, total)) => *total += ms,
-            None => self.0.push((stage.to_string(), ms)),
+            None => self.timings.0.push((stage.to_string(), ms)),
         }
         out
     }
+}
 
+impl Timings {
     pub fn total(&self) -> f64 {
         self.0.iter().map(|(_, ms)| ms).sum()
     }
@@ -124,10 +157,56 @@ pub struct Cooked {
     pub report: Report,
 }
 
+impl Cooked {
+    /// The occluder as a GLB: the watertight solid and the double-sided panels as two
+    /// primitives, with the key and counts in `extras`.
+    pub fn glb(&self) -> Vec<u8> {
+        let r = &self.report;
+        let extras = serde_json::json!({
+            "key": r.key,
+            "pipeline_version": r.pipeline_version,
+            "source_triangles": r.input.triangles,
+            "boxes": r.occluder.boxes,
+            "quads": r.occluder.quads,
+            "patches": r.occluder.patches,
+            "triangles": r.occluder.triangles,
+        });
+        let panels = crate::occluder::panel_mesh(&self.occluder.panels);
+        let parts = [
+            glb::Part {
+                name: "occluder-solid",
+                mesh: &self.occluder.solid,
+                double_sided: false,
+            },
+            glb::Part {
+                name: "occluder-panels",
+                mesh: &panels,
+                double_sided: true,
+            },
+        ];
+        glb::write(&parts, extras)
+    }
+}
+
 /// Cooks an ingested mesh. `ingest_ms` is the time the caller spent reading it.
-pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Settings, with_eval: bool) -> Cooked {
+pub fn cook(mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Settings, with_eval: bool) -> Cooked {
+    cook_with_progress(mesh, ingest, ingest_ms, settings, with_eval, &|_, _| {})
+}
+
+/// [`cook`], telling `progress` each stage as it starts.
+pub fn cook_with_progress(
+    mut mesh: Mesh,
+    ingest: IngestStats,
+    ingest_ms: f64,
+    settings: &Settings,
+    with_eval: bool,
+    progress: Progress,
+) -> Cooked {
     let cook = &settings.cook;
-    let mut timings = Timings(vec![("ingest".into(), ingest_ms)]);
+    let mut timings = Clock {
+        timings: Timings(vec![("ingest".into(), ingest_ms)]),
+        progress,
+    };
     let key = timings.time("key", || cache_key(&mesh, cook));
     let topology = timings.time("orient", || orient_closed_components(&mut mesh));
     let (lo, hi) = mesh.bounds();
@@ -323,7 +402,7 @@ pub fn cook(mut mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Sett
             silhouette_gains: selection.gains,
         },
         device: "cpu".into(),
-        timings_ms: timings,
+        timings_ms: timings.timings,
         quality,
         notes,
     };

@@ -2,7 +2,8 @@
 //!
 //! The pipeline, one module per stage: [`mesh`] (ingest, weld, export), [`voxel`] (surface and
 //! inside/outside), [`occluder`] (boxes, refinement, selection, merge), [`eval`] (quality
-//! figures), tied together by [`cook`].
+//! figures), tied together by [`cook`]; [`service`] runs it behind an HTTP job queue with a
+//! content-addressed cache.
 
 pub mod bench;
 pub mod config;
@@ -11,4 +12,5 @@ pub mod eval;
 pub mod key;
 pub mod mesh;
 pub mod occluder;
+pub mod service;
 pub mod voxel;

@@ -1,8 +1,8 @@
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use occluder_cook::config::{self, Settings};
-use occluder_cook::mesh::{self, glb, topology::orient_closed_components};
-use occluder_cook::occluder::panel_mesh;
+use occluder_cook::mesh::{self, topology::orient_closed_components};
+use occluder_cook::service::{self, client};
 use occluder_cook::voxel::InsideMethod;
 use occluder_cook::{bench, cook, eval};
 use std::path::{Path, PathBuf};
@@ -49,6 +49,50 @@ enum Command {
         #[command(flatten)]
         settings: SettingsArgs,
     },
+    /// Run the cook service: the HTTP API, a pool of workers and the sled cache.
+    Serve {
+        /// service.listen: address and port (port 0 picks a free one).
+        #[arg(long)]
+        listen: Option<String>,
+        /// service.data_dir: where jobs, inputs and results are kept.
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        /// Serve the API and run no jobs.
+        #[arg(long)]
+        no_workers: bool,
+        #[command(flatten)]
+        settings: SettingsArgs,
+    },
+    /// Print the content key of a mesh with these settings, offline (to HEAD a server first).
+    Key {
+        input: PathBuf,
+        #[command(flatten)]
+        settings: SettingsArgs,
+    },
+    /// Upload meshes to a server. Exit codes: 0 done, 1 local error, 2 rejected by the server,
+    /// 3 a job failed, 4 server unreachable or failing.
+    Submit {
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// e.g. http://127.0.0.1:8650
+        #[arg(long)]
+        server: String,
+        /// Wait for the jobs and write each occluder as OUT_DIR/<name>.occluder.glb.
+        #[arg(long)]
+        wait: bool,
+        #[arg(short, long)]
+        out_dir: Option<PathBuf>,
+        #[command(flatten)]
+        settings: SettingsArgs,
+    },
+    /// Download a cooked occluder by key (exit codes as submit).
+    Fetch {
+        key: String,
+        #[arg(long)]
+        server: String,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Cook and evaluate every mesh of a corpus; print a table and write JSON.
     Bench {
         /// Folder of meshes [default: $OCCLUDER_CORPUS or ../shared/meshes].
@@ -92,6 +136,11 @@ struct SettingsArgs {
 
 impl SettingsArgs {
     fn load(&self) -> Result<Settings> {
+        Ok(config::load(self.config.as_deref(), &self.overrides()?)?)
+    }
+
+    /// The flags and `--set`s as `key=value` pairs, in order.
+    fn overrides(&self) -> Result<Vec<(String, toml::Value)>> {
         let mut overrides = Vec::new();
         let mut flag = |key: &str, value: Option<toml::Value>| {
             if let Some(v) = value {
@@ -116,7 +165,7 @@ impl SettingsArgs {
         for assignment in &self.set {
             overrides.push(config::parse_assignment(assignment)?);
         }
-        Ok(config::load(self.config.as_deref(), &overrides)?)
+        Ok(overrides)
     }
 }
 
@@ -128,7 +177,8 @@ fn main() {
         .init();
     if let Err(e) = run(Cli::parse()) {
         eprintln!("error: {e:#}");
-        std::process::exit(1);
+        let code = e.downcast_ref::<client::Exit>().map_or(1, client::Exit::code);
+        std::process::exit(code);
     }
 }
 
@@ -197,6 +247,62 @@ fn run(cli: Cli) -> Result<()> {
                 write(&path, &serde_json::to_vec_pretty(&q)?)?;
             }
         }
+        Command::Serve {
+            listen,
+            data_dir,
+            no_workers,
+            settings,
+        } => {
+            let mut overrides = settings.overrides()?;
+            if let Some(listen) = listen {
+                overrides.push(("service.listen".into(), toml::Value::String(listen)));
+            }
+            if let Some(dir) = data_dir {
+                overrides.push((
+                    "service.data_dir".into(),
+                    toml::Value::String(dir.display().to_string()),
+                ));
+            }
+            let settings = config::load(settings.config.as_deref(), &overrides)?;
+            tokio::runtime::Runtime::new()?.block_on(service::serve(settings, no_workers))?;
+        }
+        Command::Key { input, settings } => {
+            let settings = settings.load()?;
+            let (mesh, _) = mesh::load_file(&input)?;
+            println!("{}", occluder_cook::key::cache_key(&mesh, &settings.cook));
+        }
+        Command::Submit {
+            files,
+            server,
+            wait,
+            out_dir,
+            settings: args,
+        } => {
+            let settings = args.load()?;
+            // Only cook settings travel with a job; the server checks them again.
+            let query: Vec<(String, String)> = args
+                .overrides()?
+                .into_iter()
+                .filter(|(k, _)| k.starts_with("cook."))
+                .map(|(k, v)| {
+                    let value = match v {
+                        toml::Value::String(s) => s,
+                        other => other.to_string(),
+                    };
+                    (k, value)
+                })
+                .collect();
+            let out_dir = client::output_dir(out_dir)?;
+            let client = client::Client::new(&server);
+            for file in &files {
+                let key = client.submit(file, &settings, &query, wait, &out_dir)?;
+                println!("{}\t{key}", file.display());
+            }
+        }
+        Command::Fetch { key, server, output } => {
+            client::Client::new(&server).fetch(&key, &output)?;
+            println!("wrote {}", output.display());
+        }
         Command::Bench { corpus, json, settings } => {
             let settings = settings.load()?;
             let corpus = corpus
@@ -218,30 +324,7 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn write_occluder(path: &Path, cooked: &cook::Cooked) -> Result<()> {
-    let r = &cooked.report;
-    let extras = serde_json::json!({
-        "key": r.key,
-        "pipeline_version": r.pipeline_version,
-        "source_triangles": r.input.triangles,
-        "boxes": r.occluder.boxes,
-        "quads": r.occluder.quads,
-        "patches": r.occluder.patches,
-        "triangles": r.occluder.triangles,
-    });
-    let panels = panel_mesh(&cooked.occluder.panels);
-    let parts = [
-        glb::Part {
-            name: "occluder-solid",
-            mesh: &cooked.occluder.solid,
-            double_sided: false,
-        },
-        glb::Part {
-            name: "occluder-panels",
-            mesh: &panels,
-            double_sided: true,
-        },
-    ];
-    write(path, &glb::write(&parts, extras))
+    write(path, &cooked.glb())
 }
 
 fn summarize(input: &Path, r: &cook::Report) {

@@ -1,0 +1,457 @@
+//! The HTTP API (axum). Every error is JSON: `{"error":{"code":"...","message":"..."}}`.
+
+use super::job::{Job, JobError};
+use super::store::Input;
+use super::{Service, SubmitError, Submitted};
+use crate::config::{self, ConfigError};
+use crate::key::cache_key;
+use crate::mesh::{Format, load_bytes};
+use axum::Json;
+use axum::body::Body;
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use futures_util::stream::{self, Stream};
+use metrics_exporter_prometheus::PrometheusHandle;
+use serde::Serialize;
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::watch;
+use utoipa::{OpenApi, ToSchema};
+
+#[derive(Clone)]
+pub struct AppState {
+    pub service: Arc<Service>,
+    pub metrics: PrometheusHandle,
+    /// Turns true on shutdown, ending event streams.
+    pub shutdown: watch::Receiver<bool>,
+}
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "occluder-cook",
+        description = "Conservative occluders for game meshes, cooked and cached by content key."
+    ),
+    paths(
+        submit_cook,
+        job_status,
+        job_events,
+        occluder_glb,
+        occluder_report,
+        healthz,
+        metrics_text
+    ),
+    components(schemas(Accepted, ErrorBody, ErrorDetail, Job, JobError, super::job::JobState))
+)]
+pub struct ApiDoc;
+
+pub fn router(state: AppState) -> axum::Router {
+    axum::Router::new()
+        .route("/v1/cook", post(submit_cook))
+        .route("/v1/jobs/{id}", get(job_status))
+        .route("/v1/jobs/{id}/events", get(job_events))
+        .route("/v1/occluders/{key}", get(occluder_glb))
+        .route("/v1/occluders/{key}/report", get(occluder_report))
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics_text))
+        .route("/openapi.json", get(openapi_json))
+        .fallback(|| async { ApiError::new(StatusCode::NOT_FOUND, "not_found", "no such route") })
+        .method_not_allowed_fallback(|| async {
+            ApiError::new(
+                StatusCode::METHOD_NOT_ALLOWED,
+                "method_not_allowed",
+                "method not allowed here",
+            )
+        })
+        .with_state(state)
+}
+
+/// The answer to a submission.
+#[derive(Serialize, ToSchema)]
+pub struct Accepted {
+    /// The job that makes (or made) the result.
+    pub job: String,
+    pub key: String,
+    pub status_url: String,
+    pub result_url: String,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+#[derive(Serialize, ToSchema)]
+pub struct ErrorDetail {
+    pub code: String,
+    pub message: String,
+}
+
+#[derive(Debug)]
+pub struct ApiError {
+    status: StatusCode,
+    code: &'static str,
+    message: String,
+    retry_after: Option<u64>,
+}
+
+impl ApiError {
+    fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> ApiError {
+        ApiError {
+            status,
+            code,
+            message: message.into(),
+            retry_after: None,
+        }
+    }
+
+    fn storage(e: impl std::fmt::Display) -> ApiError {
+        tracing::error!(error = %e, "storage error");
+        ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "storage", e.to_string())
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let body = ErrorBody {
+            error: ErrorDetail {
+                code: self.code.into(),
+                message: self.message,
+            },
+        };
+        let mut response = (self.status, Json(body)).into_response();
+        if let Some(seconds) = self.retry_after {
+            response
+                .headers_mut()
+                .insert(header::RETRY_AFTER, HeaderValue::from(seconds));
+        }
+        response
+    }
+}
+
+fn accepted(key: &str, job: String) -> Accepted {
+    Accepted {
+        status_url: format!("/v1/jobs/{job}"),
+        result_url: format!("/v1/occluders/{key}"),
+        key: key.to_string(),
+        job,
+    }
+}
+
+/// The mesh format from `?format=` or the Content-Type.
+fn format_of(query: Option<&str>, headers: &HeaderMap) -> Result<(Format, &'static str), ApiError> {
+    let content_type = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(|v| v.split(';').next().unwrap_or("").trim().to_ascii_lowercase());
+    let name = match (query, content_type.as_deref()) {
+        (Some(q), _) => q.to_ascii_lowercase(),
+        (None, Some("model/gltf-binary" | "model/gltf+json")) => "gltf".into(),
+        (None, Some("model/obj")) => "obj".into(),
+        (None, Some("model/stl" | "model/x.stl-binary" | "model/x.stl-ascii")) => "stl".into(),
+        (None, other) => {
+            return Err(ApiError::new(
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "unknown_format",
+                format!(
+                    "Content-Type {} is not a mesh type: use model/gltf-binary, model/gltf+json, model/obj, model/stl or ?format=",
+                    other.unwrap_or("(none)")
+                ),
+            ));
+        }
+    };
+    match name.as_str() {
+        "glb" | "gltf" => Ok((Format::Gltf, "gltf")),
+        "obj" => Ok((Format::Obj, "obj")),
+        "stl" => Ok((Format::Stl, "stl")),
+        other => Err(ApiError::new(
+            StatusCode::BAD_REQUEST,
+            "unknown_format",
+            format!("format `{other}` is not one of glb, gltf, obj, stl"),
+        )),
+    }
+}
+
+/// The server's settings with the query's `cook.*` overrides (a bare name means `cook.NAME`).
+fn job_settings(service: &Service, params: &[(String, String)]) -> Result<config::Settings, ApiError> {
+    let bad = |e: ConfigError| ApiError::new(StatusCode::BAD_REQUEST, "bad_settings", e.to_string());
+    let mut overrides = Vec::new();
+    for (key, value) in params.iter().filter(|(k, _)| k != "format") {
+        let key = if key.contains('.') {
+            key.clone()
+        } else {
+            format!("cook.{key}")
+        };
+        if !key.starts_with("cook.") {
+            return Err(ApiError::new(
+                StatusCode::BAD_REQUEST,
+                "bad_settings",
+                format!("setting `{key}` cannot be set per job: only cook.* settings can"),
+            ));
+        }
+        overrides.push(config::parse_assignment(&format!("{key}={value}")).map_err(bad)?);
+    }
+    config::load_over(&service.settings, &overrides).map_err(bad)
+}
+
+#[utoipa::path(
+    post, path = "/v1/cook",
+    params(
+        ("format" = Option<String>, Query, description = "glb, gltf, obj or stl; else the Content-Type decides"),
+    ),
+    request_body(content = Vec<u8>, description = "The mesh file", content_type = "application/octet-stream"),
+    responses(
+        (status = 200, description = "Already cooked: the result is there", body = Accepted),
+        (status = 202, description = "Queued (or already queued or running)", body = Accepted),
+        (status = 400, description = "Bad settings", body = ErrorBody),
+        (status = 413, description = "Body over service.max_body_bytes", body = ErrorBody),
+        (status = 415, description = "Unknown mesh type", body = ErrorBody),
+        (status = 422, description = "The mesh cannot be read", body = ErrorBody),
+        (status = 429, description = "The queue is full; see Retry-After", body = ErrorBody),
+    )
+)]
+async fn submit_cook(
+    State(state): State<AppState>,
+    Query(params): Query<Vec<(String, String)>>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let service = &state.service;
+    let limit = service.settings.service.max_body_bytes;
+    let too_large = || {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too_large",
+            format!("the body is over service.max_body_bytes ({limit} bytes)"),
+        )
+    };
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok()?.parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit as u64) {
+        return Err(too_large());
+    }
+    let format_param = params.iter().find(|(k, _)| k == "format").map(|(_, v)| v.as_str());
+    let (format, format_name) = format_of(format_param, &headers)?;
+    let settings = job_settings(service, &params)?;
+    let bytes = axum::body::to_bytes(body, limit).await.map_err(|_| too_large())?;
+    if bytes.is_empty() {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "bad_mesh",
+            "the body is empty",
+        ));
+    }
+    let cook_settings = settings.cook.clone();
+    let (bytes, key) = tokio::task::spawn_blocking(move || {
+        let (mesh, _) = load_bytes(&bytes, format, None)?;
+        Ok::<_, crate::mesh::IngestError>((bytes, cache_key(&mesh, &cook_settings)))
+    })
+    .await
+    .map_err(|e| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "bad_mesh",
+            format!("reading the mesh crashed: {e}"),
+        )
+    })?
+    .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "bad_mesh", e.to_string()))?;
+    let input = Input {
+        format: format_name.into(),
+        bytes: bytes.to_vec(),
+    };
+    let settings_json = serde_json::to_value(&settings.cook).expect("settings serialize");
+    match service.submit(&key, input, settings_json).await {
+        Ok(Submitted::Cached(job)) => Ok((StatusCode::OK, Json(accepted(&key, job))).into_response()),
+        Ok(Submitted::Queued(job)) => {
+            let body = accepted(&key, job);
+            let location = HeaderValue::from_str(&body.status_url).expect("ids are ASCII");
+            Ok((StatusCode::ACCEPTED, [(header::LOCATION, location)], Json(body)).into_response())
+        }
+        Err(SubmitError::QueueFull(n)) => Err(ApiError {
+            retry_after: Some(5),
+            ..ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                "queue_full",
+                format!("{n} jobs are waiting; try again later"),
+            )
+        }),
+        Err(SubmitError::Store(e)) => Err(ApiError::storage(e)),
+    }
+}
+
+async fn find_job(service: &Service, id: &str) -> Result<Job, ApiError> {
+    service
+        .job(id)
+        .await
+        .map_err(ApiError::storage)?
+        .ok_or_else(|| ApiError::new(StatusCode::NOT_FOUND, "unknown_job", format!("no job {id}")))
+}
+
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}",
+    params(("id" = String, Path, description = "Job id")),
+    responses((status = 200, body = Job), (status = 404, body = ErrorBody))
+)]
+async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> Result<Json<Job>, ApiError> {
+    Ok(Json(find_job(&state.service, &id).await?))
+}
+
+#[utoipa::path(
+    get, path = "/v1/jobs/{id}/events",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Server-Sent Events: the job as JSON at each change, until it ends", content_type = "text/event-stream"),
+        (status = 404, body = ErrorBody)
+    )
+)]
+async fn job_events(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
+    let first = find_job(&state.service, &id).await?;
+    let service = Arc::clone(&state.service);
+    let shutdown = state.shutdown.clone();
+    // (job to send now, last sent, ended)
+    let events = stream::unfold((Some(first), None::<Job>, false), move |(next, sent, ended)| {
+        let service = Arc::clone(&service);
+        let shutdown = shutdown.clone();
+        let id = id.clone();
+        async move {
+            if ended {
+                return None;
+            }
+            let mut job = next;
+            loop {
+                if let Some(j) = job.take()
+                    && Some(&j) != sent.as_ref()
+                {
+                    let event = Event::default()
+                        .event(j.state.name())
+                        .json_data(&j)
+                        .expect("jobs serialize");
+                    let ended = j.state.is_finished();
+                    return Some((Ok(event), (None, Some(j), ended)));
+                }
+                if *shutdown.borrow() {
+                    return None;
+                }
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                job = Some(service.job(&id).await.ok().flatten()?);
+            }
+        }
+    });
+    Ok(Sse::new(events).keep_alive(KeepAlive::default()))
+}
+
+/// A result was missing or broken: 404, saying whether it is being cooked again.
+fn missing(key: &str, recook: Option<String>) -> ApiError {
+    match recook {
+        Some(job) => ApiError::new(
+            StatusCode::NOT_FOUND,
+            "recomputing",
+            format!("the result for {key} failed its integrity check and is being cooked again by job {job}"),
+        ),
+        None => ApiError::new(
+            StatusCode::NOT_FOUND,
+            "unknown_key",
+            format!("no occluder for key {key}"),
+        ),
+    }
+}
+
+fn check_key(key: &str) -> Result<(), ApiError> {
+    if key.len() == 64 && key.bytes().all(|b| b.is_ascii_hexdigit()) {
+        Ok(())
+    } else {
+        Err(ApiError::new(
+            StatusCode::BAD_REQUEST,
+            "bad_key",
+            format!("`{key}` is not a key (64 hex digits)"),
+        ))
+    }
+}
+
+#[utoipa::path(
+    get, path = "/v1/occluders/{key}",
+    params(("key" = String, Path, description = "Content key (64 hex digits)")),
+    responses(
+        (status = 200, description = "The occluder GLB; ETag is the key, immutable", content_type = "model/gltf-binary"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 404, body = ErrorBody)
+    )
+)]
+async fn occluder_glb(
+    State(state): State<AppState>,
+    Path(key): Path<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    check_key(&key)?;
+    let etag = format!("\"{key}\"");
+    let matches = headers
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| {
+            v.split(',')
+                .map(str::trim)
+                .any(|t| t == "*" || t.trim_start_matches("W/") == etag)
+        });
+    let cache_headers = [
+        (header::ETAG, HeaderValue::from_str(&etag).expect("hex is ASCII")),
+        (
+            header::CACHE_CONTROL,
+            HeaderValue::from_static("public, max-age=31536000, immutable"),
+        ),
+    ];
+    if matches
+        && state
+            .service
+            .result_meta(&key)
+            .await
+            .map_err(ApiError::storage)?
+            .is_some()
+    {
+        return Ok((StatusCode::NOT_MODIFIED, cache_headers).into_response());
+    }
+    match state.service.result_glb(&key).await.map_err(ApiError::storage)? {
+        Ok(glb) => {
+            let content_type = (header::CONTENT_TYPE, HeaderValue::from_static("model/gltf-binary"));
+            Ok((StatusCode::OK, cache_headers, [content_type], glb).into_response())
+        }
+        Err(recook) => Err(missing(&key, recook)),
+    }
+}
+
+#[utoipa::path(
+    get, path = "/v1/occluders/{key}/report",
+    params(("key" = String, Path, description = "Content key (64 hex digits)")),
+    responses((status = 200, description = "The cook report", content_type = "application/json"), (status = 404, body = ErrorBody))
+)]
+async fn occluder_report(State(state): State<AppState>, Path(key): Path<String>) -> Result<Response, ApiError> {
+    check_key(&key)?;
+    match state.service.result_report(&key).await.map_err(ApiError::storage)? {
+        Ok(report) => Ok(([(header::CONTENT_TYPE, "application/json")], report).into_response()),
+        Err(recook) => Err(missing(&key, recook)),
+    }
+}
+
+#[utoipa::path(get, path = "/healthz", responses((status = 200, description = "Serving")))]
+async fn healthz(State(state): State<AppState>) -> Json<serde_json::Value> {
+    Json(serde_json::json!({ "status": "ok", "queue_depth": state.service.queue_depth() }))
+}
+
+#[utoipa::path(get, path = "/metrics", responses((status = 200, description = "Prometheus text format", content_type = "text/plain")))]
+async fn metrics_text(State(state): State<AppState>) -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
+        state.metrics.render(),
+    )
+}
+
+async fn openapi_json() -> Json<utoipa::openapi::OpenApi> {
+    Json(ApiDoc::openapi())
+}

@@ -1,0 +1,210 @@
+//! The CLI clients CI runs against a server: `submit` and `fetch`, with exit codes a build can
+//! trust (see [`Exit`]).
+
+use crate::config::Settings;
+use crate::key::cache_key;
+use crate::mesh::{Format, load_file};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// Why a client run failed, as its exit code.
+#[derive(Debug, thiserror::Error)]
+pub enum Exit {
+    /// 2: the server refused the request (4xx): a bad mesh, bad settings, unknown key.
+    #[error("{0}")]
+    Rejected(String),
+    /// 3: a job ran and failed.
+    #[error("{0}")]
+    JobFailed(String),
+    /// 4: the server could not be reached or failed (5xx, 429 after retries).
+    #[error("{0}")]
+    Unavailable(String),
+    /// 1: a local problem (unreadable file, cannot write the output).
+    #[error("{0}")]
+    Local(String),
+}
+
+impl Exit {
+    pub fn code(&self) -> i32 {
+        match self {
+            Exit::Local(_) => 1,
+            Exit::Rejected(_) => 2,
+            Exit::JobFailed(_) => 3,
+            Exit::Unavailable(_) => 4,
+        }
+    }
+}
+
+/// A server's answer: status and body.
+struct Reply {
+    status: u16,
+    body: Vec<u8>,
+}
+
+impl Reply {
+    fn json(&self) -> Value {
+        serde_json::from_slice(&self.body).unwrap_or(Value::Null)
+    }
+
+    /// The error message of a JSON error body, or the status.
+    fn error(&self) -> String {
+        let j = self.json();
+        match j["error"]["message"].as_str() {
+            Some(m) => format!("{} ({})", m, j["error"]["code"].as_str().unwrap_or("error")),
+            None => format!("HTTP {}", self.status),
+        }
+    }
+
+    /// Turns a non-success status into the exit it means.
+    fn check(self, what: &str) -> Result<Reply, Exit> {
+        match self.status {
+            200..=299 | 304 => Ok(self),
+            429 | 500..=599 => Err(Exit::Unavailable(format!("{what}: {}", self.error()))),
+            _ => Err(Exit::Rejected(format!("{what}: {}", self.error()))),
+        }
+    }
+}
+
+pub struct Client {
+    agent: ureq::Agent,
+    server: String,
+}
+
+impl Client {
+    pub fn new(server: &str) -> Client {
+        let agent = ureq::Agent::config_builder()
+            .http_status_as_error(false)
+            .timeout_global(Some(Duration::from_secs(600)))
+            .build()
+            .into();
+        Client {
+            agent,
+            server: server.trim_end_matches('/').to_string(),
+        }
+    }
+
+    fn reply(&self, result: Result<ureq::http::Response<ureq::Body>, ureq::Error>, what: &str) -> Result<Reply, Exit> {
+        let mut response =
+            result.map_err(|e| Exit::Unavailable(format!("{what}: {} unreachable: {e}", self.server)))?;
+        let status = response.status().as_u16();
+        let body = response
+            .body_mut()
+            .with_config()
+            .limit(u64::MAX)
+            .read_to_vec()
+            .map_err(|e| Exit::Unavailable(format!("{what}: {e}")))?;
+        Ok(Reply { status, body })
+    }
+
+    fn get(&self, path: &str) -> Result<Reply, Exit> {
+        let url = format!("{}{path}", self.server);
+        self.reply(self.agent.get(&url).call(), &url)
+    }
+
+    fn head(&self, path: &str) -> Result<u16, Exit> {
+        let url = format!("{}{path}", self.server);
+        Ok(self.reply(self.agent.head(&url).call(), &url)?.status)
+    }
+
+    /// Writes the occluder of `key` to `out`.
+    pub fn fetch(&self, key: &str, out: &Path) -> Result<(), Exit> {
+        let reply = self.get(&format!("/v1/occluders/{key}"))?.check("fetch")?;
+        std::fs::write(out, &reply.body).map_err(|e| Exit::Local(format!("cannot write {}: {e}", out.display())))
+    }
+
+    /// Uploads `file` (unless the server has its key already), waits for the job if `wait`,
+    /// and writes `<stem>.occluder.glb` into `out_dir`. Returns the key.
+    pub fn submit(
+        &self,
+        file: &Path,
+        settings: &Settings,
+        query: &[(String, String)],
+        wait: bool,
+        out_dir: &Path,
+    ) -> Result<String, Exit> {
+        let name = file.display().to_string();
+        let (mesh, _) = load_file(file).map_err(|e| Exit::Local(format!("{name}: {e}")))?;
+        let out = out_dir.join(format!(
+            "{}.occluder.glb",
+            file.file_stem().unwrap_or_default().to_string_lossy()
+        ));
+        // The key is known offline: a HEAD saves the upload when the result exists.
+        let local_key = cache_key(&mesh, &settings.cook);
+        if self.head(&format!("/v1/occluders/{local_key}"))? == 200 {
+            if wait {
+                self.fetch(&local_key, &out)?;
+            }
+            return Ok(local_key);
+        }
+        let format = match Format::from_extension(file).map_err(|e| Exit::Local(format!("{name}: {e}")))? {
+            Format::Gltf => "gltf",
+            Format::Obj => "obj",
+            Format::Stl => "stl",
+        };
+        let bytes = std::fs::read(file).map_err(|e| Exit::Local(format!("{name}: {e}")))?;
+        let mut url = format!("{}/v1/cook?format={format}", self.server);
+        for (k, v) in query {
+            url.push_str(&format!("&{}={}", urlencoding::encode(k), urlencoding::encode(v)));
+        }
+        let accepted = self
+            .reply(
+                self.agent
+                    .post(&url)
+                    .content_type("application/octet-stream")
+                    .send(&bytes[..]),
+                &name,
+            )?
+            .check(&name)?
+            .json();
+        let key = accepted["key"].as_str().unwrap_or(&local_key).to_string();
+        if wait {
+            let job = accepted["job"].as_str().unwrap_or_default().to_string();
+            self.wait(&job, &name)?;
+            self.fetch(&key, &out)?;
+        }
+        Ok(key)
+    }
+
+    /// Polls a job until it ends, with a progress bar on stderr.
+    fn wait(&self, job: &str, name: &str) -> Result<(), Exit> {
+        let bar = ProgressBar::new(1000);
+        bar.set_style(
+            ProgressStyle::with_template("{prefix} [{bar:30}] {msg}")
+                .expect("the template parses")
+                .progress_chars("=> "),
+        );
+        bar.set_prefix(name.to_string());
+        loop {
+            let status = self.get(&format!("/v1/jobs/{job}"))?.check(name)?.json();
+            bar.set_position((status["progress"].as_f64().unwrap_or(0.0) * 1000.0) as u64);
+            bar.set_message(format!(
+                "{} {}",
+                status["state"].as_str().unwrap_or("?"),
+                status["stage"].as_str().unwrap_or("")
+            ));
+            match status["state"].as_str() {
+                Some("done") => {
+                    bar.finish_with_message("done");
+                    return Ok(());
+                }
+                Some("failed") => {
+                    bar.abandon_with_message("failed");
+                    return Err(Exit::JobFailed(format!(
+                        "{name}: job {job} failed: {}",
+                        status["error"]["message"].as_str().unwrap_or("unknown error")
+                    )));
+                }
+                _ => std::thread::sleep(Duration::from_millis(200)),
+            }
+        }
+    }
+}
+
+/// The output folder, created if needed.
+pub fn output_dir(dir: Option<PathBuf>) -> Result<PathBuf, Exit> {
+    let dir = dir.unwrap_or_else(|| ".".into());
+    std::fs::create_dir_all(&dir).map_err(|e| Exit::Local(format!("cannot create {}: {e}", dir.display())))?;
+    Ok(dir)
+}

@@ -1,0 +1,66 @@
+//! A cook job: what was asked, and where it stands.
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum JobState {
+    Queued,
+    Running,
+    Done,
+    Failed,
+}
+
+impl JobState {
+    pub fn is_finished(self) -> bool {
+        matches!(self, JobState::Done | JobState::Failed)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Done => "done",
+            JobState::Failed => "failed",
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct JobError {
+    pub code: String,
+    pub message: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Job {
+    pub id: String,
+    /// The content key of the mesh and settings; the result is filed under it.
+    pub key: String,
+    pub state: JobState,
+    /// The pipeline stage running now, or the last one.
+    pub stage: Option<String>,
+    /// 0 to 1.
+    pub progress: f64,
+    pub error: Option<JobError>,
+    /// The effective cook settings, as JSON.
+    #[schema(value_type = Object)]
+    pub settings: serde_json::Value,
+    pub created_ms: u64,
+    pub updated_ms: u64,
+    /// Times a worker has started it (a restart runs unfinished jobs again).
+    pub attempts: u32,
+}
+
+/// Milliseconds since the Unix epoch.
+pub fn now_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
+
+/// A job id: unique across processes and machines.
+pub fn new_id() -> String {
+    format!("{:012x}{:016x}", now_ms(), fastrand::u64(..))
+}

@@ -1,0 +1,122 @@
+//! Where the service keeps jobs, uploaded inputs and results: one trait, so that the API and the
+//! workers do not know which storage they run on. [`sled::SledStore`] is the embedded one.
+//!
+//! Blobs are stored sealed with their BLAKE3 hash; a blob that fails the check on read is
+//! deleted and reported missing, never returned.
+
+pub mod sled;
+
+use super::job::Job;
+use async_trait::async_trait;
+use serde::{Deserialize, Serialize};
+
+pub type StoreResult<T> = Result<T, StoreError>;
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("storage: {0}")]
+    Backend(String),
+    #[error("stored record is unreadable: {0}")]
+    Decode(String),
+}
+
+/// An uploaded mesh, kept until its result exists.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Input {
+    /// `gltf`, `obj` or `stl`.
+    pub format: String,
+    pub bytes: Vec<u8>,
+}
+
+impl Input {
+    /// `format length ‖ format ‖ bytes`.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(1 + self.format.len() + self.bytes.len());
+        out.push(self.format.len() as u8);
+        out.extend_from_slice(self.format.as_bytes());
+        out.extend_from_slice(&self.bytes);
+        out
+    }
+
+    pub fn decode(encoded: &[u8]) -> Option<Input> {
+        let (&n, rest) = encoded.split_first()?;
+        let (format, bytes) = rest.split_at_checked(n as usize)?;
+        Some(Input {
+            format: String::from_utf8(format.to_vec()).ok()?,
+            bytes: bytes.to_vec(),
+        })
+    }
+}
+
+/// What a finished cook leaves behind, filed under its key.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ResultMeta {
+    /// The job that made it.
+    pub job: String,
+    /// Bytes of the GLB and the report together.
+    pub bytes: u64,
+    pub created_ms: u64,
+}
+
+#[async_trait]
+pub trait Store: Send + Sync + 'static {
+    /// Writes a job record and makes it durable before returning.
+    async fn put_job(&self, job: &Job) -> StoreResult<()>;
+    async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
+    /// Jobs that are queued or running: what a restart must run again.
+    async fn unfinished_jobs(&self) -> StoreResult<Vec<Job>>;
+
+    async fn put_input(&self, key: &str, input: &Input) -> StoreResult<()>;
+    async fn input(&self, key: &str) -> StoreResult<Option<Input>>;
+    async fn delete_input(&self, key: &str) -> StoreResult<()>;
+
+    /// Stores a result (GLB and report JSON) durably.
+    async fn put_result(&self, key: &str, glb: &[u8], report: &[u8], meta: &ResultMeta) -> StoreResult<()>;
+    /// The GLB, if present and intact.
+    async fn result_glb(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
+    /// The report JSON, if present and intact.
+    async fn result_report(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
+    async fn result_meta(&self, key: &str) -> StoreResult<Option<ResultMeta>>;
+    async fn delete_result(&self, key: &str) -> StoreResult<()>;
+    /// Every stored result: (key, meta).
+    async fn results(&self) -> StoreResult<Vec<(String, ResultMeta)>>;
+
+    async fn flush(&self) -> StoreResult<()>;
+}
+
+/// `hash ‖ payload`.
+pub fn seal(payload: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(32 + payload.len());
+    out.extend_from_slice(blake3::hash(payload).as_bytes());
+    out.extend_from_slice(payload);
+    out
+}
+
+/// The payload of a sealed blob, if its hash matches.
+pub fn unseal(sealed: &[u8]) -> Option<&[u8]> {
+    let (hash, payload) = sealed.split_at_checked(32)?;
+    (blake3::hash(payload).as_bytes() == hash).then_some(payload)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_flipped_bit_breaks_the_seal() {
+        let mut sealed = seal(b"occluder");
+        assert_eq!(unseal(&sealed), Some(&b"occluder"[..]));
+        sealed[35] ^= 1;
+        assert_eq!(unseal(&sealed), None);
+        assert_eq!(unseal(b"short"), None);
+    }
+
+    #[test]
+    fn inputs_round_trip() {
+        let input = Input {
+            format: "obj".into(),
+            bytes: b"v 0 0 0".to_vec(),
+        };
+        assert_eq!(Input::decode(&input.encode()), Some(input));
+    }
+}

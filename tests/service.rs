@@ -1,0 +1,400 @@
+//! The real server binary on a loopback port, driven over HTTP: submissions, deduplication, the
+//! cache and its headers, every error status, a full queue, a kill -9 and restart, a corrupted
+//! blob on disk, and a graceful SIGTERM.
+
+mod common;
+use common::{cuboid, torus};
+use glam::Vec3;
+use occluder_cook::mesh::Mesh;
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+struct Server {
+    child: Child,
+    base: String,
+}
+
+impl Server {
+    /// Starts `occluder-cook serve` on a free port over `data`, with `--set` overrides.
+    fn start(data: &Path, sets: &[&str]) -> Server {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_occluder-cook"));
+        command
+            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+            .arg(data)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit());
+        for s in sets {
+            command.args(["--set", s]);
+        }
+        let mut child = command.spawn().expect("the server starts");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let addr = line
+            .trim()
+            .strip_prefix("listening on ")
+            .unwrap_or_else(|| panic!("unexpected first line {line:?}"));
+        Server {
+            child,
+            base: format!("http://{addr}"),
+        }
+    }
+
+    fn kill_9(mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+    }
+
+    /// SIGTERM, and the exit status.
+    fn terminate(mut self) -> std::process::ExitStatus {
+        Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status()
+            .unwrap();
+        self.child.wait().unwrap()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+struct Reply {
+    status: u16,
+    headers: ureq::http::HeaderMap,
+    body: Vec<u8>,
+}
+
+impl Reply {
+    fn json(&self) -> Value {
+        serde_json::from_slice(&self.body)
+            .unwrap_or_else(|_| panic!("not JSON: {}", String::from_utf8_lossy(&self.body)))
+    }
+
+    fn header(&self, name: &str) -> Option<&str> {
+        self.headers.get(name).and_then(|v| v.to_str().ok())
+    }
+
+    /// Asserts a JSON error body with this status and code.
+    fn assert_error(&self, status: u16, code: &str) {
+        assert_eq!(self.status, status, "{}", String::from_utf8_lossy(&self.body));
+        assert_eq!(self.json()["error"]["code"], code);
+        assert!(self.json()["error"]["message"].as_str().is_some_and(|m| !m.is_empty()));
+    }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .timeout_global(Some(Duration::from_secs(60)))
+        .build()
+        .into()
+}
+
+fn reply(result: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> Reply {
+    let mut response = result.expect("the server answers");
+    Reply {
+        status: response.status().as_u16(),
+        headers: response.headers().clone(),
+        body: response.body_mut().with_config().limit(u64::MAX).read_to_vec().unwrap(),
+    }
+}
+
+fn get(url: &str, headers: &[(&str, &str)]) -> Reply {
+    let mut request = agent().get(url);
+    for (k, v) in headers {
+        request = request.header(*k, *v);
+    }
+    reply(request.call())
+}
+
+fn post(url: &str, content_type: Option<&str>, body: &[u8]) -> Reply {
+    let mut request = agent().post(url);
+    if let Some(t) = content_type {
+        request = request.header("Content-Type", t);
+    }
+    reply(request.send(body))
+}
+
+fn obj_text(mesh: &Mesh) -> Vec<u8> {
+    let mut text = String::new();
+    for p in &mesh.positions {
+        text.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+    }
+    for t in &mesh.triangles {
+        text.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    text.into_bytes()
+}
+
+/// A small distinct mesh for each `i`.
+fn small_mesh(i: usize) -> Vec<u8> {
+    obj_text(&cuboid(Vec3::ZERO, Vec3::new(1.0 + i as f32 * 0.01, 1.0, 0.5), &[]))
+}
+
+fn data_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-service-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// Polls a job until it ends; returns its final JSON.
+fn wait_for(base: &str, job: &str, limit: Duration) -> Value {
+    let start = Instant::now();
+    loop {
+        let status = get(&format!("{base}/v1/jobs/{job}"), &[]);
+        assert_eq!(status.status, 200, "{}", String::from_utf8_lossy(&status.body));
+        let j = status.json();
+        if j["state"] == "done" || j["state"] == "failed" {
+            return j;
+        }
+        assert!(
+            start.elapsed() < limit,
+            "job {job} still {} after {limit:?}",
+            j["state"]
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn submit_dedupe_cache_and_headers() {
+    let dir = data_dir("basic");
+    let server = Server::start(&dir, &[]);
+    let base = &server.base;
+    let cube = obj_text(&cuboid(Vec3::splat(-1.0), Vec3::splat(1.0), &[]));
+
+    let first = post(&format!("{base}/v1/cook"), Some("model/obj"), &cube);
+    assert_eq!(first.status, 202, "{}", String::from_utf8_lossy(&first.body));
+    let accepted = first.json();
+    let (job, key) = (accepted["job"].as_str().unwrap(), accepted["key"].as_str().unwrap());
+    assert_eq!(first.header("location"), Some(format!("/v1/jobs/{job}").as_str()));
+    assert_eq!(accepted["result_url"], format!("/v1/occluders/{key}"));
+
+    // The same mesh again, while queued or running or done: the same job, never a second one.
+    let again = post(&format!("{base}/v1/cook?format=obj"), None, &cube);
+    assert!(again.status == 202 || again.status == 200);
+    assert_eq!(again.json()["job"], job);
+
+    let events = get(&format!("{base}/v1/jobs/{job}/events"), &[]);
+    let text = String::from_utf8_lossy(&events.body);
+    assert!(text.contains("event: done"), "{text}");
+    let done = wait_for(base, job, Duration::from_secs(60));
+    assert_eq!(done["state"], "done");
+    assert_eq!(done["progress"], 1.0);
+
+    let glb = get(&format!("{base}/v1/occluders/{key}"), &[]);
+    assert_eq!(glb.status, 200);
+    assert_eq!(&glb.body[..4], b"glTF");
+    assert_eq!(glb.header("etag"), Some(format!("\"{key}\"").as_str()));
+    assert!(glb.header("cache-control").unwrap().contains("immutable"));
+    assert_eq!(glb.header("content-type"), Some("model/gltf-binary"));
+    let etag = format!("\"{key}\"");
+    let not_modified = get(&format!("{base}/v1/occluders/{key}"), &[("If-None-Match", &etag)]);
+    assert_eq!(not_modified.status, 304);
+    let head = reply(agent().head(&format!("{base}/v1/occluders/{key}")).call());
+    assert_eq!((head.status, head.body.len()), (200, 0));
+    let report = get(&format!("{base}/v1/occluders/{key}/report"), &[]);
+    assert_eq!(report.json()["key"], key);
+
+    // Cached: 200 and the job that made it. The same geometry as GLB has the same key.
+    let cached = post(&format!("{base}/v1/cook"), Some("model/obj"), &cube);
+    assert_eq!((cached.status, cached.json()["job"].as_str()), (200, Some(job)));
+    let (mesh, _) = occluder_cook::mesh::load_bytes(&cube, occluder_cook::mesh::Format::Obj, None).unwrap();
+    let part = occluder_cook::mesh::glb::Part {
+        name: "cube",
+        mesh: &mesh,
+        double_sided: false,
+    };
+    let as_glb = occluder_cook::mesh::glb::write(&[part], Value::Null);
+    let from_glb = post(&format!("{base}/v1/cook"), Some("model/gltf-binary"), &as_glb);
+    assert_eq!((from_glb.status, from_glb.json()["key"].as_str()), (200, Some(key)));
+    // A changed setting is another key.
+    let other = post(&format!("{base}/v1/cook?resolution=32"), Some("model/obj"), &cube);
+    assert_eq!(other.status, 202);
+    assert_ne!(other.json()["key"], key);
+
+    let unknown = "0".repeat(64);
+    get(&format!("{base}/v1/occluders/{unknown}"), &[]).assert_error(404, "unknown_key");
+    get(&format!("{base}/v1/occluders/nothex"), &[]).assert_error(400, "bad_key");
+    get(&format!("{base}/v1/jobs/nope"), &[]).assert_error(404, "unknown_job");
+
+    let health = get(&format!("{base}/healthz"), &[]);
+    assert_eq!(health.json()["status"], "ok");
+    let metrics = String::from_utf8(get(&format!("{base}/metrics"), &[]).body).unwrap();
+    for name in [
+        "occluder_cook_stage_seconds_bucket",
+        "occluder_cache_hits_total",
+        "occluder_cache_misses_total",
+        "occluder_jobs{state=\"queued\"}",
+        "occluder_queue_depth",
+        "occluder_cache_bytes",
+    ] {
+        assert!(metrics.contains(name), "{name} missing from /metrics:\n{metrics}");
+    }
+    let openapi = get(&format!("{base}/openapi.json"), &[]).json();
+    for path in [
+        "/v1/cook",
+        "/v1/jobs/{id}",
+        "/v1/jobs/{id}/events",
+        "/v1/occluders/{key}",
+    ] {
+        assert!(openapi["paths"].get(path).is_some(), "{path} missing from openapi.json");
+    }
+    assert!(server.terminate().success(), "SIGTERM ends the server cleanly");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_requests_get_json_errors_and_the_server_keeps_serving() {
+    let dir = data_dir("errors");
+    let server = Server::start(&dir, &["service.max_body_bytes=4096"]);
+    let base = &server.base;
+    let cook = format!("{base}/v1/cook");
+    post(&cook, Some("model/obj"), &vec![b'#'; 10_000]).assert_error(413, "too_large");
+    post(&cook, Some("model/obj"), b"this is not a mesh").assert_error(422, "bad_mesh");
+    post(&cook, Some("model/obj"), b"v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n").assert_error(422, "bad_mesh");
+    post(&cook, Some("model/obj"), b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n").assert_error(422, "bad_mesh");
+    post(&cook, Some("model/gltf-binary"), b"glTF\x02\x00\x00\x00").assert_error(422, "bad_mesh");
+    post(&cook, Some("model/obj"), b"").assert_error(422, "bad_mesh");
+    post(&cook, None, &small_mesh(0)).assert_error(415, "unknown_format");
+    post(&format!("{cook}?format=ply"), None, &small_mesh(0)).assert_error(400, "unknown_format");
+    post(&format!("{cook}?resolutoin=64"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
+    post(&format!("{cook}?resolution=-1"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
+    post(&format!("{cook}?service.workers=9"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
+    get(&format!("{base}/v1/nowhere"), &[]).assert_error(404, "not_found");
+    reply(agent().delete(&cook).call()).assert_error(405, "method_not_allowed");
+    let ok = post(&cook, Some("model/obj"), &small_mesh(0));
+    assert_eq!(ok.status, 202, "still serving after the bad requests");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_full_queue_answers_429_with_retry_after() {
+    let dir = data_dir("queue");
+    let server = Server::start(&dir, &["service.workers=1", "service.max_queue=1"]);
+    let url = format!("{}/v1/cook?resolution=256", server.base);
+    let statuses: Vec<Reply> = (0..4).map(|i| post(&url, Some("model/obj"), &small_mesh(i))).collect();
+    let full = statuses
+        .iter()
+        .find(|r| r.status == 429)
+        .expect("one submission finds the queue full");
+    full.assert_error(429, "queue_full");
+    assert_eq!(full.header("retry-after"), Some("5"));
+    assert_eq!(statuses[0].status, 202);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn kill_9_then_restart_loses_no_job_and_no_result() {
+    let dir = data_dir("kill");
+    let server = Server::start(&dir, &["service.workers=1"]);
+    let base = server.base.clone();
+    let quick = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(1)).json();
+    let quick_job = quick["job"].as_str().unwrap().to_string();
+    wait_for(&base, &quick_job, Duration::from_secs(60));
+    // A slow job and one queued behind it.
+    let slow_mesh = obj_text(&torus(1.0, 0.45, 48, 24));
+    let slow = post(&format!("{base}/v1/cook?resolution=320"), Some("model/obj"), &slow_mesh).json();
+    let behind = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(2)).json();
+    let start = Instant::now();
+    while get(&format!("{base}/v1/jobs/{}", slow["job"].as_str().unwrap()), &[]).json()["state"] != "running" {
+        assert!(start.elapsed() < Duration::from_secs(30), "the slow job never started");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    server.kill_9();
+
+    let server = Server::start(&dir, &["service.workers=1"]);
+    let base = server.base.clone();
+    for job in [&slow, &behind] {
+        let done = wait_for(&base, job["job"].as_str().unwrap(), Duration::from_secs(180));
+        assert_eq!(done["state"], "done", "{done}");
+        let glb = get(&format!("{base}/v1/occluders/{}", job["key"].as_str().unwrap()), &[]);
+        assert_eq!(glb.status, 200);
+    }
+    let slow_done = get(&format!("{base}/v1/jobs/{}", slow["job"].as_str().unwrap()), &[]).json();
+    assert_eq!(slow_done["attempts"], 2, "the interrupted job ran again");
+    let before = get(&format!("{base}/v1/occluders/{}", quick["key"].as_str().unwrap()), &[]);
+    assert_eq!(before.status, 200, "a result finished before the kill is still there");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_corrupted_blob_is_never_served_and_is_cooked_again() {
+    let dir = data_dir("corrupt");
+    let server = Server::start(&dir, &[]);
+    let base = server.base.clone();
+    let accepted = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(3)).json();
+    let key = accepted["key"].as_str().unwrap().to_string();
+    wait_for(&base, accepted["job"].as_str().unwrap(), Duration::from_secs(60));
+    let good = get(&format!("{base}/v1/occluders/{key}"), &[]).body;
+    assert!(server.terminate().success());
+
+    // Flip one byte of the stored GLB, behind the server's back.
+    {
+        let db = sled::open(&dir).unwrap();
+        let glbs = db.open_tree("glbs").unwrap();
+        let mut value = glbs.get(&key).unwrap().expect("the result is stored").to_vec();
+        let last = value.len() - 1;
+        value[last] ^= 0x55;
+        glbs.insert(key.as_bytes(), value).unwrap();
+        db.flush().unwrap();
+    }
+
+    let server = Server::start(&dir, &[]);
+    let base = server.base.clone();
+    let broken = get(&format!("{base}/v1/occluders/{key}"), &[]);
+    broken.assert_error(404, "recomputing");
+    let start = Instant::now();
+    loop {
+        let again = get(&format!("{base}/v1/occluders/{key}"), &[]);
+        if again.status == 200 {
+            assert_eq!(again.body, good, "the cooked-again result is the same");
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(60), "never cooked again");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The value of a gauge or counter in /metrics.
+fn metric(base: &str, name: &str) -> f64 {
+    let text = String::from_utf8(get(&format!("{base}/metrics"), &[]).body).unwrap();
+    text.lines()
+        .find_map(|l| l.strip_prefix(name)?.trim().parse().ok())
+        .unwrap_or_else(|| panic!("{name} not in /metrics"))
+}
+
+#[test]
+fn the_cache_evicts_the_least_recently_used_result() {
+    let dir = data_dir("evict");
+    let cook = |base: &str, i: usize| {
+        let accepted = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(10 + i)).json();
+        wait_for(base, accepted["job"].as_str().unwrap(), Duration::from_secs(60));
+        accepted["key"].as_str().unwrap().to_string()
+    };
+    // Measure one result, then restart with room for two and a half of them.
+    let server = Server::start(&dir, &["service.workers=1"]);
+    let first = cook(&server.base, 0);
+    let one = metric(&server.base, "occluder_cache_bytes");
+    assert!(server.terminate().success());
+    let limit = format!("service.max_cache_bytes={}", (one * 2.5) as u64);
+    let server = Server::start(&dir, &["service.workers=1", &limit]);
+    let base = server.base.clone();
+    let second = cook(&base, 1);
+    // Use the first again, so that the second is the least recently used.
+    assert_eq!(get(&format!("{base}/v1/occluders/{first}"), &[]).status, 200);
+    let third = cook(&base, 2);
+    let status = |key: &str| get(&format!("{base}/v1/occluders/{key}"), &[]).status;
+    assert_eq!((status(&first), status(&second), status(&third)), (200, 404, 200));
+    assert_eq!(metric(&base, "occluder_evictions_total"), 1.0);
+    let _ = std::fs::remove_dir_all(&dir);
+}

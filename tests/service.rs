@@ -398,3 +398,74 @@ fn the_cache_evicts_the_least_recently_used_result() {
     assert_eq!(metric(&base, "occluder_evictions_total"), 1.0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+fn cli(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn submit_and_fetch_from_the_cli_with_exit_codes_ci_can_trust() {
+    let dir = data_dir("cli");
+    let server = Server::start(&dir, &[]);
+    let base = server.base.as_str();
+    let work = data_dir("cli-work");
+    std::fs::create_dir_all(&work).unwrap();
+    let mesh = work.join("crate.obj");
+    std::fs::write(&mesh, small_mesh(20)).unwrap();
+    let mesh = mesh.to_str().unwrap();
+    let out = work.join("out");
+    let out_dir = out.to_str().unwrap();
+
+    let (code, key_line, _) = cli(&["key", mesh]);
+    assert_eq!(code, 0);
+    let key = key_line.trim().to_string();
+    let (code, stdout, stderr) = cli(&["submit", mesh, "--server", base, "--wait", "-o", out_dir]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains(&key), "the offline key is the server's key: {stdout}");
+    let written = std::fs::read(out.join("crate.occluder.glb")).unwrap();
+    assert_eq!(&written[..4], b"glTF");
+    // Submitting again finds it by key with a HEAD, without uploading.
+    let (code, _, stderr) = cli(&["submit", mesh, "--server", base, "--wait", "-o", out_dir]);
+    assert_eq!(code, 0, "{stderr}");
+    let fetched = work.join("fetched.glb");
+    let (code, _, stderr) = cli(&["fetch", &key, "--server", base, "-o", fetched.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(std::fs::read(&fetched).unwrap(), written);
+
+    let (code, _, stderr) = cli(&[
+        "fetch",
+        &"0".repeat(64),
+        "--server",
+        base,
+        "-o",
+        fetched.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "an unknown key is a rejection: {stderr}");
+    let (code, _, stderr) = cli(&["submit", mesh, "--server", base, "--set", "cook.resolution=2"]);
+    assert_eq!(code, 1, "bad settings fail locally first: {stderr}");
+    let broken = work.join("broken.obj");
+    std::fs::write(&broken, "v 0 0 0\nf 1 2 3\n").unwrap();
+    let (code, _, stderr) = cli(&["submit", broken.to_str().unwrap(), "--server", base]);
+    assert_eq!(code, 1, "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "one line: {stderr}");
+    drop(server);
+    let (code, _, stderr) = cli(&[
+        "fetch",
+        &key,
+        "--server",
+        "http://127.0.0.1:9",
+        "-o",
+        fetched.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 4, "an unreachable server: {stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&work);
+}

@@ -263,57 +263,51 @@ fn gap_at(gaps: &[Gap], t: f64, margin: f64) -> Option<usize> {
     gaps.iter().position(|g| g.lo + margin < t && t < g.hi - margin)
 }
 
-/// Where one candidate plane is open: the cells (with the gap that holds the plane) inside
-/// `bounds`, and the largest rectangle of those whose gap is still unused.
+/// Where one candidate plane is open: the cells with the gap that holds the plane, and the
+/// largest rectangle of those whose gap is still unused.
 struct PlaneCells {
     t: f64,
     cells: Vec<(usize, usize)>,
-    bounds: CellRect,
     best: Option<CellRect>,
 }
 
 impl PlaneCells {
-    fn new(gaps: &[Vec<Gap>], nv: usize, t: f64, margin: f64) -> PlaneCells {
+    fn new(gaps: &[Vec<Gap>], t: f64, margin: f64) -> PlaneCells {
         let cells: Vec<(usize, usize)> = gaps
             .iter()
             .enumerate()
             .filter_map(|(c, g)| gap_at(g, t, margin).map(|k| (c, k)))
             .collect();
-        let mut bounds = CellRect {
-            u: [usize::MAX, 0],
-            v: [usize::MAX, 0],
-        };
-        for &(c, _) in &cells {
-            let (u, v) = (c / nv, c % nv);
-            bounds.u = [bounds.u[0].min(u), bounds.u[1].max(u + 1)];
-            bounds.v = [bounds.v[0].min(v), bounds.v[1].max(v + 1)];
-        }
-        PlaneCells {
-            t,
-            cells,
-            bounds,
-            best: None,
-        }
+        PlaneCells { t, cells, best: None }
     }
 
-    /// Recomputes `best` over the cells whose gap is unused, on the bounds' sub-grid.
+    /// Recomputes `best` over the cells whose gap is unused. Used gaps stay used, so they leave
+    /// the list for good, and the search grid shrinks to what is left.
     fn update(&mut self, gaps: &[Vec<Gap>], nv: usize) {
+        self.cells.retain(|&(c, k)| !gaps[c][k].used);
         self.best = None;
         if self.cells.is_empty() {
             return;
         }
-        let (bu, bv) = (self.bounds.u[1] - self.bounds.u[0], self.bounds.v[1] - self.bounds.v[0]);
+        let mut bounds = CellRect {
+            u: [usize::MAX, 0],
+            v: [usize::MAX, 0],
+        };
+        for &(c, _) in &self.cells {
+            let (u, v) = (c / nv, c % nv);
+            bounds.u = [bounds.u[0].min(u), bounds.u[1].max(u + 1)];
+            bounds.v = [bounds.v[0].min(v), bounds.v[1].max(v + 1)];
+        }
+        let (bu, bv) = (bounds.u[1] - bounds.u[0], bounds.v[1] - bounds.v[0]);
         let mut mask = vec![false; bu * bv];
-        for &(c, k) in &self.cells {
-            if !gaps[c][k].used {
-                mask[(c / nv - self.bounds.u[0]) * bv + c % nv - self.bounds.v[0]] = true;
-            }
+        for &(c, _) in &self.cells {
+            mask[(c / nv - bounds.u[0]) * bv + c % nv - bounds.v[0]] = true;
         }
         self.best = rectangle::largest(&mask, bu, bv, MIN_SIDE)
             .filter(|r| r.cells() >= MIN_CELLS)
             .map(|r| CellRect {
-                u: r.u.map(|u| u + self.bounds.u[0]),
-                v: r.v.map(|v| v + self.bounds.v[0]),
+                u: r.u.map(|u| u + bounds.u[0]),
+                v: r.v.map(|v| v + bounds.v[0]),
             });
     }
 }
@@ -326,7 +320,7 @@ fn best_rectangles(g: &AxisGrid, mut gaps: Vec<Vec<Gap>>, planes: &[f64], margin
     let mut candidates: Vec<PlaneCells> = planes
         .par_iter()
         .map(|&t| {
-            let mut p = PlaneCells::new(&gaps, nv, t, margin);
+            let mut p = PlaneCells::new(&gaps, t, margin);
             p.update(&gaps, nv);
             p
         })

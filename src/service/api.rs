@@ -195,6 +195,9 @@ fn job_settings(service: &Service, params: &[(String, String)]) -> Result<config
         }
         overrides.push(config::parse_assignment(&format!("{key}={value}")).map_err(bad)?);
     }
+    if overrides.is_empty() {
+        return Ok(service.settings.clone());
+    }
     config::load_over(&service.settings, &overrides).map_err(bad)
 }
 
@@ -246,25 +249,38 @@ async fn submit_cook(
             "the body is empty",
         ));
     }
-    let cook_settings = settings.cook.clone();
-    let (bytes, key) = tokio::task::spawn_blocking(move || {
-        let (mesh, _) = load_bytes(&bytes, format, None)?;
-        Ok::<_, crate::mesh::IngestError>((bytes, cache_key(&mesh, &cook_settings)))
-    })
-    .await
-    .map_err(|e| {
-        ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "bad_mesh",
-            format!("reading the mesh crashed: {e}"),
-        )
-    })?
-    .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "bad_mesh", e.to_string()))?;
+    let settings_json = serde_json::to_value(&settings.cook).expect("settings serialize");
+    let mut upload = blake3::Hasher::new();
+    upload.update(format_name.as_bytes());
+    upload.update(settings_json.to_string().as_bytes());
+    upload.update(&bytes);
+    let upload = upload.finalize();
+    let key = match service.seen_key(&upload) {
+        Some(key) => key,
+        None => {
+            let cook_settings = settings.cook.clone();
+            let parse = bytes.clone();
+            let key = tokio::task::spawn_blocking(move || {
+                let (mesh, _) = load_bytes(&parse, format, None)?;
+                Ok::<_, crate::mesh::IngestError>(cache_key(&mesh, &cook_settings))
+            })
+            .await
+            .map_err(|e| {
+                ApiError::new(
+                    StatusCode::UNPROCESSABLE_ENTITY,
+                    "bad_mesh",
+                    format!("reading the mesh crashed: {e}"),
+                )
+            })?
+            .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "bad_mesh", e.to_string()))?;
+            service.remember_key(upload, &key);
+            key
+        }
+    };
     let input = Input {
         format: format_name.into(),
         bytes: bytes.to_vec(),
     };
-    let settings_json = serde_json::to_value(&settings.cook).expect("settings serialize");
     match service.submit(&key, input, settings_json).await {
         Ok(Submitted::Cached(job)) => Ok((StatusCode::OK, Json(accepted(&key, job))).into_response()),
         Ok(Submitted::Queued(job)) => {

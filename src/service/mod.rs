@@ -34,7 +34,13 @@ pub struct Service {
     /// Queued or running job id by key: identical work joins it.
     active: Mutex<HashMap<String, String>>,
     cache: Mutex<Lru>,
+    /// Keys of uploads seen before, by the BLAKE3 of their bytes, format and settings: a repeat
+    /// upload skips parsing.
+    seen: Mutex<HashMap<blake3::Hash, String>>,
 }
+
+/// Most remembered uploads; the memo starts over beyond it.
+const SEEN_UPLOADS: usize = 100_000;
 
 /// Least recently used results, by key: (last access, bytes).
 #[derive(Default)]
@@ -101,6 +107,7 @@ impl Service {
             live: Mutex::new(HashMap::new()),
             active: Mutex::new(HashMap::new()),
             cache: Mutex::new(Lru::default()),
+            seen: Mutex::new(HashMap::new()),
         });
         // Oldest first, so that the least recently made is the first to go.
         let mut results = service.store.results().await?;
@@ -179,6 +186,19 @@ impl Service {
         self.enqueue(job);
         self.update_gauges();
         Ok(Submitted::Queued(id))
+    }
+
+    /// The key of an upload seen before.
+    pub fn seen_key(&self, upload: &blake3::Hash) -> Option<String> {
+        self.seen.lock().unwrap().get(upload).cloned()
+    }
+
+    pub fn remember_key(&self, upload: blake3::Hash, key: &str) {
+        let mut seen = self.seen.lock().unwrap();
+        if seen.len() >= SEEN_UPLOADS {
+            seen.clear();
+        }
+        seen.insert(upload, key.to_string());
     }
 
     /// The job's latest state.

@@ -32,6 +32,17 @@ impl SledStore {
         })
     }
 
+    /// Makes every write so far durable. sled 0.34's `flush_async` can deadlock when called
+    /// concurrently (spacejam/sled#1308), so the blocking flush runs on the blocking pool.
+    async fn durable(&self) -> StoreResult<()> {
+        let db = self.db.clone();
+        tokio::task::spawn_blocking(move || db.flush())
+            .await
+            .map_err(backend)?
+            .map_err(backend)?;
+        Ok(())
+    }
+
     /// The sealed blob under `key` in `tree`; a broken seal deletes it and reads as missing.
     fn sealed(&self, tree: &sled::Tree, key: &str) -> StoreResult<Option<Vec<u8>>> {
         let Some(value) = tree.get(key).map_err(backend)? else {
@@ -58,7 +69,7 @@ impl Store for SledStore {
     async fn put_job(&self, job: &Job) -> StoreResult<()> {
         let bytes = serde_json::to_vec(job).expect("jobs serialize");
         self.jobs.insert(job.id.as_bytes(), bytes).map_err(backend)?;
-        self.db.flush_async().await.map_err(backend)?;
+        self.durable().await?;
         Ok(())
     }
 
@@ -102,7 +113,7 @@ impl Store for SledStore {
         self.metas
             .insert(key, serde_json::to_vec(meta).expect("metas serialize"))
             .map_err(backend)?;
-        self.db.flush_async().await.map_err(backend)?;
+        self.durable().await?;
         Ok(())
     }
 
@@ -135,7 +146,7 @@ impl Store for SledStore {
     }
 
     async fn flush(&self) -> StoreResult<()> {
-        self.db.flush_async().await.map_err(backend)?;
+        self.durable().await?;
         Ok(())
     }
 }

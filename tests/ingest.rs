@@ -189,3 +189,10 @@ fn broken_corpus_files_do_what_expected_md_says() {
         Err(IngestError::NonFinite(..))
     ));
 }
+
+#[test]
+fn obj_lines_continued_with_a_backslash_and_crlf_are_joined() {
+    let text = "v 0 0 0\r\nv 1 0 0\r\nv 1 1 0\r\nv 0 1 0\r\nusemtl \r\nf 1 2 \\\r\n3 4\r\n";
+    let (mesh, _) = load_bytes(text.as_bytes(), Format::Obj, None).unwrap();
+    assert_eq!(mesh.triangles.len(), 2);
+}

@@ -11,15 +11,24 @@ pub fn read(bytes: &[u8]) -> Result<RawMesh, IngestError> {
         ..Default::default()
     };
     // Materials do not change geometry, and tobj rejects some material lines that other readers
-    // accept (an empty `usemtl`), so they are left out. CRLF endings become LF, which tobj's
-    // line continuations (`\` at the end of a line) need.
+    // accept (an empty `usemtl`), so they are left out. CRLF endings become LF, and lines
+    // continued with `\` are joined here (tobj's own joining fails on some exporters' output).
     let mut geometry = Vec::with_capacity(bytes.len());
     for line in bytes.split(|&b| b == b'\n') {
         let line = line.strip_suffix(b"\r").unwrap_or(line);
         let start = line.trim_ascii_start();
-        if !start.starts_with(b"usemtl") && !start.starts_with(b"mtllib") {
-            geometry.extend_from_slice(line);
-            geometry.push(b'\n');
+        if start.starts_with(b"usemtl") || start.starts_with(b"mtllib") {
+            continue;
+        }
+        match line.trim_ascii_end().strip_suffix(b"\\") {
+            Some(continued) => {
+                geometry.extend_from_slice(continued);
+                geometry.push(b' ');
+            }
+            None => {
+                geometry.extend_from_slice(line);
+                geometry.push(b'\n');
+            }
         }
     }
     let (models, _) = tobj::load_obj_buf(

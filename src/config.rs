@@ -17,6 +17,14 @@ pub struct Settings {
     pub cook: CookSettings,
     pub eval: EvalSettings,
     pub service: ServiceSettings,
+    pub level: LevelSettings,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LevelSettings {
+    pub batch_max_triangles: usize,
+    pub batch_max_extent: f64,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -208,6 +216,13 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.quad_grid", c.quad_grid as f64, 8.0, 4096.0)?;
     check("cook.min_patch_area", c.min_patch_area, 0.0, 1.0)?;
     check("eval.views", e.views as f64, 1.0, 4096.0)?;
+    check(
+        "level.batch_max_triangles",
+        s.level.batch_max_triangles as f64,
+        12.0,
+        1e9,
+    )?;
+    check("level.batch_max_extent", s.level.batch_max_extent, 1e-6, 1e12)?;
     let v = &s.service;
     check("service.workers", v.workers as f64, 1.0, 256.0)?;
     check("service.max_body_bytes", v.max_body_bytes as f64, 1024.0, 4e9)?;

@@ -10,6 +10,7 @@ pub mod config;
 pub mod cook;
 pub mod eval;
 pub mod key;
+pub mod level;
 pub mod mesh;
 pub mod occluder;
 pub mod service;

@@ -93,6 +93,25 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// Bake a level manifest into a few merged occluder batches, cooking each unique mesh once
+    /// through the same sled cache as the service.
+    Level {
+        manifest: PathBuf,
+        /// The level's occluder GLB: one mesh per batch.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Write the report JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Write the batch list (bounds, triangles, instances) here [default: OUTPUT.batches.json].
+        #[arg(long)]
+        batches: Option<PathBuf>,
+        /// service.data_dir: the cache.
+        #[arg(long)]
+        data_dir: Option<PathBuf>,
+        #[command(flatten)]
+        settings: SettingsArgs,
+    },
     /// Cook and evaluate every mesh of a corpus; print a table and write JSON.
     Bench {
         /// Folder of meshes [default: $OCCLUDER_CORPUS or ../shared/meshes].
@@ -302,6 +321,62 @@ fn run(cli: Cli) -> Result<()> {
         Command::Fetch { key, server, output } => {
             client::Client::new(&server).fetch(&key, &output)?;
             println!("wrote {}", output.display());
+        }
+        Command::Level {
+            manifest,
+            output,
+            report,
+            batches,
+            data_dir,
+            settings,
+        } => {
+            let mut overrides = settings.overrides()?;
+            if let Some(dir) = data_dir {
+                overrides.push((
+                    "service.data_dir".into(),
+                    toml::Value::String(dir.display().to_string()),
+                ));
+            }
+            let settings = config::load(settings.config.as_deref(), &overrides)?;
+            let level = occluder_cook::level::load_manifest(&manifest)?;
+            let dir = settings.service.data_dir();
+            std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+            let store = service::store::sled::SledStore::open(&dir)
+                .with_context(|| "the cache is in use (a server on the same data_dir?): pass --data-dir".to_string())?;
+            let bar = indicatif::ProgressBar::new(0);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template("unique meshes [{bar:30}] {pos}/{len}")
+                    .expect("the template parses")
+                    .progress_chars("=> "),
+            );
+            let progress = |done: usize, total: usize| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            };
+            let baked = tokio::runtime::Runtime::new()?
+                .block_on(occluder_cook::level::bake(&level, &settings, &store, &progress))?;
+            bar.finish_and_clear();
+            write(&output, &baked.glb)?;
+            let batches = batches.unwrap_or_else(|| output.with_extension("batches.json"));
+            write(&batches, &serde_json::to_vec_pretty(&baked.batches)?)?;
+            if let Some(path) = report {
+                write(&path, &serde_json::to_vec_pretty(&baked.report)?)?;
+            }
+            let r = &baked.report;
+            println!(
+                "{}: {} instances of {} unique meshes ({} cached), {} batches, {} occluder triangles \
+                 ({} placed source triangles), draw calls {} -> {}, {:.0} ms",
+                manifest.display(),
+                r.instances,
+                r.unique_meshes,
+                r.cache_hits,
+                r.batches,
+                r.triangles_after,
+                r.triangles_before,
+                r.draw_calls_before,
+                r.draw_calls_after,
+                r.timings_ms.total()
+            );
         }
         Command::Bench { corpus, json, settings } => {
             let settings = settings.load()?;

@@ -82,6 +82,8 @@ pub struct IngestStats {
     pub degenerate_triangles: usize,
     /// Points, lines and line strips are not surfaces; they are skipped.
     pub skipped_primitives: usize,
+    /// Triangle primitives (glTF) or groups (OBJ) read: the draw calls the mesh costs.
+    pub primitives: usize,
     pub warnings: Vec<String>,
 }
 
@@ -91,6 +93,7 @@ pub(crate) struct RawMesh {
     pub positions: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,
     pub skipped_primitives: usize,
+    pub primitives: usize,
     pub warnings: Vec<String>,
 }
 
@@ -115,6 +118,7 @@ impl RawMesh {
                 .push(tri.map(|i| u32::try_from(base + i).expect("vertex count fits u32")));
         }
         self.positions.extend_from_slice(positions);
+        self.primitives += 1;
         Ok(())
     }
 }
@@ -152,6 +156,7 @@ pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
         input_triangles: raw.triangles.len(),
         input_vertices: raw.positions.len(),
         skipped_primitives: raw.skipped_primitives,
+        primitives: raw.primitives,
         warnings: raw.warnings,
         ..Default::default()
     };

@@ -1,0 +1,411 @@
+//! Whole levels: a manifest of placed meshes becomes a few merged occluder batches.
+//!
+//! Unique meshes are cooked once each, by key, through the same sled cache as the service, so a
+//! rebake, or a level that shares meshes with one baked before, reuses them. Instances are then
+//! placed and clustered spatially into batches ([`batch`]), and each batch is one glTF mesh.
+
+pub mod batch;
+
+use crate::config::Settings;
+use crate::cook::cook;
+use crate::key::cache_key;
+use crate::mesh::{Format, Mesh, glb, load_bytes};
+use crate::service::store::{Input, ResultMeta, Store};
+use batch::Placed;
+use glam::{DMat4, DVec3, Vec3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    #[serde(default)]
+    pub name: String,
+    #[serde(default)]
+    pub source: String,
+    pub instances: Vec<InstanceSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InstanceSpec {
+    /// A path relative to the manifest, or the key of a mesh cooked before.
+    pub mesh: String,
+    /// 4×4, column-major (glTF's convention).
+    pub transform: Vec<f64>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum LevelError {
+    #[error("cannot read manifest {path}: {message}")]
+    Read { path: String, message: String },
+    #[error("manifest {path}: {message}")]
+    Malformed { path: String, message: String },
+    #[error("the level has no instances")]
+    Empty,
+    #[error("instance {index}: mesh `{mesh}` not found (neither a file next to the manifest nor a cached key)")]
+    MissingMesh { index: usize, mesh: String },
+    #[error("instance {index}: bad transform: {why}")]
+    BadTransform { index: usize, why: String },
+    #[error("mesh {mesh}: {message}")]
+    BadMesh { mesh: String, message: String },
+    #[error("cache: {0}")]
+    Cache(String),
+}
+
+/// A manifest with every instance checked: its mesh source and its matrix.
+pub struct Level {
+    pub name: String,
+    pub instances: Vec<(MeshRef, DMat4)>,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum MeshRef {
+    File(PathBuf),
+    Key(String),
+}
+
+impl MeshRef {
+    fn label(&self) -> String {
+        match self {
+            MeshRef::File(p) => p.display().to_string(),
+            MeshRef::Key(k) => k.clone(),
+        }
+    }
+}
+
+fn is_key(s: &str) -> bool {
+    s.len() == 64 && s.bytes().all(|b| b.is_ascii_hexdigit())
+}
+
+/// Reads and checks a manifest: every mesh exists, every transform is finite and invertible.
+pub fn load_manifest(path: &Path) -> Result<Level, LevelError> {
+    let name = path.display().to_string();
+    let text = std::fs::read(path).map_err(|e| LevelError::Read {
+        path: name.clone(),
+        message: e.to_string(),
+    })?;
+    let manifest: Manifest = serde_json::from_slice(&text).map_err(|e| LevelError::Malformed {
+        path: name.clone(),
+        message: e.to_string(),
+    })?;
+    if manifest.instances.is_empty() {
+        return Err(LevelError::Empty);
+    }
+    let base = path.parent().unwrap_or(Path::new("."));
+    let mut instances = Vec::with_capacity(manifest.instances.len());
+    for (index, spec) in manifest.instances.iter().enumerate() {
+        let file = base.join(&spec.mesh);
+        let mesh = if file.is_file() {
+            MeshRef::File(file)
+        } else if is_key(&spec.mesh) {
+            MeshRef::Key(spec.mesh.to_ascii_lowercase())
+        } else {
+            return Err(LevelError::MissingMesh {
+                index,
+                mesh: spec.mesh.clone(),
+            });
+        };
+        let bad = |why: &str| LevelError::BadTransform {
+            index,
+            why: why.to_string(),
+        };
+        let columns: [f64; 16] = spec
+            .transform
+            .as_slice()
+            .try_into()
+            .map_err(|_| bad(&format!("expected 16 numbers, got {}", spec.transform.len())))?;
+        if columns.iter().any(|v| !v.is_finite()) {
+            return Err(bad("not finite (NaN or infinity)"));
+        }
+        let matrix = DMat4::from_cols_array(&columns);
+        let det = glam::DMat3::from_mat4(matrix).determinant();
+        if det.abs() < 1e-12 {
+            return Err(bad("singular (it flattens the mesh)"));
+        }
+        instances.push((mesh, matrix));
+    }
+    Ok(Level {
+        name: manifest.name,
+        instances,
+    })
+}
+
+/// The occluder of one unique mesh: its watertight solid and its double-sided panels.
+struct Occluder {
+    solid: Mesh,
+    panels: Mesh,
+    source_triangles: usize,
+    source_primitives: usize,
+}
+
+impl Occluder {
+    fn triangles(&self) -> usize {
+        self.solid.triangles.len() + self.panels.triangles.len()
+    }
+}
+
+#[derive(Debug, Serialize)]
+pub struct BatchInfo {
+    pub name: String,
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+    pub triangles: usize,
+    /// Indices into the manifest's instances.
+    pub instances: Vec<usize>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct LevelReport {
+    pub name: String,
+    pub instances: usize,
+    pub unique_meshes: usize,
+    pub cache_hits: usize,
+    pub batches: usize,
+    /// Placed source triangles.
+    pub triangles_before: usize,
+    /// Occluder triangles over all batches.
+    pub triangles_after: usize,
+    /// One per primitive of each placed mesh.
+    pub draw_calls_before: usize,
+    pub draw_calls_after: usize,
+    pub timings_ms: crate::cook::Timings,
+}
+
+pub struct Baked {
+    pub glb: Vec<u8>,
+    pub batches: Vec<BatchInfo>,
+    pub report: LevelReport,
+}
+
+/// Cooks (or finds in `store`) every unique mesh, places the instances and merges them into
+/// batches. `progress(done, total)` is told as unique meshes are ready.
+pub async fn bake(
+    level: &Level,
+    settings: &Settings,
+    store: &dyn Store,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Baked, LevelError> {
+    let mut timings = crate::cook::Timings::default();
+    let started = Instant::now();
+    let cache = |e: crate::service::store::StoreError| LevelError::Cache(e.to_string());
+    let mut unique: Vec<&MeshRef> = level.instances.iter().map(|(m, _)| m).collect();
+    unique.sort_by_key(|m| m.label());
+    unique.dedup();
+    // Keys first: files are read and keyed in parallel.
+    // (mesh, key, what to cook it from when it is not cached)
+    type Keyed = (MeshRef, String, Option<(Input, Mesh, crate::mesh::IngestStats)>);
+    let keyed: Vec<Result<Keyed, LevelError>> = unique
+        .par_iter()
+        .map(|m| match m {
+            MeshRef::Key(k) => Ok(((*m).clone(), k.clone(), None)),
+            MeshRef::File(path) => {
+                let bad = |message: String| LevelError::BadMesh {
+                    mesh: path.display().to_string(),
+                    message,
+                };
+                let format = Format::from_extension(path).map_err(|e| bad(e.to_string()))?;
+                let bytes = std::fs::read(path).map_err(|e| bad(e.to_string()))?;
+                let (mesh, stats) = load_bytes(&bytes, format, path.parent()).map_err(|e| bad(e.to_string()))?;
+                let key = cache_key(&mesh, &settings.cook);
+                let format = match format {
+                    Format::Gltf => "gltf",
+                    Format::Obj => "obj",
+                    Format::Stl => "stl",
+                };
+                let input = Input {
+                    format: format.into(),
+                    bytes,
+                };
+                Ok(((*m).clone(), key, Some((input, mesh, stats))))
+            }
+        })
+        .collect();
+    let keyed = keyed.into_iter().collect::<Result<Vec<_>, _>>()?;
+    timings
+        .0
+        .push(("read+key".into(), started.elapsed().as_secs_f64() * 1e3));
+
+    let lookup = Instant::now();
+    let mut occluders: HashMap<MeshRef, Occluder> = HashMap::new();
+    let mut misses = Vec::new();
+    for (m, key, source) in keyed {
+        match store.result_glb(&key).await.map_err(cache)? {
+            Some(bytes) => {
+                let report = store.result_report(&key).await.map_err(cache)?;
+                occluders.insert(m, occluder_from_glb(&key, &bytes, report.as_deref())?);
+            }
+            None => match source {
+                Some(source) => misses.push((m, key, source)),
+                None => {
+                    let index = level.instances.iter().position(|(r, _)| *r == m).unwrap_or(0);
+                    return Err(LevelError::MissingMesh { index, mesh: key });
+                }
+            },
+        }
+    }
+    let cache_hits = occluders.len();
+    timings.0.push(("cache".into(), lookup.elapsed().as_secs_f64() * 1e3));
+    progress(cache_hits, unique.len());
+
+    let cooking = Instant::now();
+    let done = std::sync::atomic::AtomicUsize::new(cache_hits);
+    let cooked: Vec<_> = misses
+        .into_par_iter()
+        .map(|(m, key, (input, mesh, stats))| {
+            let cooked = cook(mesh, stats, 0.0, settings, false);
+            let finished = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+            progress(finished, unique.len());
+            (m, key, input, cooked)
+        })
+        .collect();
+    for (m, key, input, cooked) in cooked {
+        let glb = cooked.glb();
+        let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
+        store.put_input(&key, &input).await.map_err(cache)?;
+        let meta = ResultMeta {
+            job: "level".into(),
+            bytes: (glb.len() + report.len()) as u64,
+            created_ms: crate::service::job::now_ms(),
+        };
+        store.put_result(&key, &glb, &report, &meta).await.map_err(cache)?;
+        occluders.insert(m, occluder_from_glb(&key, &glb, Some(&report))?);
+    }
+    timings.0.push(("cook".into(), cooking.elapsed().as_secs_f64() * 1e3));
+
+    let placing = Instant::now();
+    let placed: Vec<Placed> = level
+        .instances
+        .iter()
+        .map(|(m, matrix)| {
+            let o = &occluders[m];
+            let (lo, hi) = transformed_bounds(&o.solid, &o.panels, matrix);
+            Placed {
+                lo,
+                hi,
+                triangles: o.triangles(),
+            }
+        })
+        .collect();
+    let groups = batch::cluster(
+        &placed,
+        settings.level.batch_max_triangles,
+        settings.level.batch_max_extent,
+    );
+    let merged: Vec<(Mesh, Mesh)> = groups
+        .par_iter()
+        .map(|group| {
+            let (mut solid, mut panels) = (Mesh::default(), Mesh::default());
+            for &i in group {
+                let (m, matrix) = &level.instances[i];
+                let o = &occluders[m];
+                solid.append(&transformed(&o.solid, matrix));
+                panels.append(&transformed(&o.panels, matrix));
+            }
+            (solid, panels)
+        })
+        .collect();
+    let mut batches = Vec::with_capacity(groups.len());
+    let mut nodes = Vec::with_capacity(groups.len());
+    for (b, (group, (solid, panels))) in groups.iter().zip(&merged).enumerate() {
+        let lo = group.iter().fold(DVec3::INFINITY, |lo, &i| lo.min(placed[i].lo));
+        let hi = group.iter().fold(DVec3::NEG_INFINITY, |hi, &i| hi.max(placed[i].hi));
+        let info = BatchInfo {
+            name: format!("batch-{b}"),
+            lo: lo.to_array(),
+            hi: hi.to_array(),
+            triangles: solid.triangles.len() + panels.triangles.len(),
+            instances: group.clone(),
+        };
+        nodes.push(glb::Node {
+            name: info.name.clone(),
+            parts: vec![
+                glb::Part {
+                    name: "occluder-solid",
+                    mesh: solid,
+                    double_sided: false,
+                },
+                glb::Part {
+                    name: "occluder-panels",
+                    mesh: panels,
+                    double_sided: true,
+                },
+            ],
+            extras: serde_json::json!({ "bounds": { "min": info.lo, "max": info.hi }, "triangles": info.triangles,
+                "instances": info.instances.len() }),
+        });
+        batches.push(info);
+    }
+    let glb = glb::write_scene(&nodes);
+    timings
+        .0
+        .push(("place+batch".into(), placing.elapsed().as_secs_f64() * 1e3));
+    let report = LevelReport {
+        name: level.name.clone(),
+        instances: level.instances.len(),
+        unique_meshes: unique.len(),
+        cache_hits,
+        batches: batches.len(),
+        triangles_before: level.instances.iter().map(|(m, _)| occluders[m].source_triangles).sum(),
+        triangles_after: batches.iter().map(|b| b.triangles).sum(),
+        draw_calls_before: level
+            .instances
+            .iter()
+            .map(|(m, _)| occluders[m].source_primitives)
+            .sum(),
+        draw_calls_after: batches.len(),
+        timings_ms: timings,
+    };
+    Ok(Baked { glb, batches, report })
+}
+
+/// A cached occluder's parts, with the source's size from its report.
+fn occluder_from_glb(key: &str, glb: &[u8], report: Option<&[u8]>) -> Result<Occluder, LevelError> {
+    let parts = glb::read_parts(glb).map_err(|e| LevelError::Cache(format!("result {key}: {e}")))?;
+    let (mut solid, mut panels) = (Mesh::default(), Mesh::default());
+    for (name, mesh) in parts {
+        if name == "occluder-panels" {
+            panels.append(&mesh);
+        } else {
+            solid.append(&mesh);
+        }
+    }
+    let report: serde_json::Value = report.and_then(|r| serde_json::from_slice(r).ok()).unwrap_or_default();
+    Ok(Occluder {
+        solid,
+        panels,
+        source_triangles: report["input"]["triangles"].as_u64().unwrap_or(0) as usize,
+        source_primitives: report["input"]["primitives"].as_u64().unwrap_or(1).max(1) as usize,
+    })
+}
+
+fn transformed(mesh: &Mesh, matrix: &DMat4) -> Mesh {
+    let flip = glam::DMat3::from_mat4(*matrix).determinant() < 0.0;
+    Mesh {
+        positions: mesh
+            .positions
+            .iter()
+            .map(|p| matrix.transform_point3(p.as_dvec3()).as_vec3())
+            .collect(),
+        // A mirroring transform turns faces inside out; swapping two corners turns them back.
+        triangles: mesh
+            .triangles
+            .iter()
+            .map(|&[a, b, c]| if flip { [a, c, b] } else { [a, b, c] })
+            .collect(),
+    }
+}
+
+fn transformed_bounds(solid: &Mesh, panels: &Mesh, matrix: &DMat4) -> (DVec3, DVec3) {
+    solid
+        .positions
+        .iter()
+        .chain(&panels.positions)
+        .map(|p: &Vec3| matrix.transform_point3(p.as_dvec3()))
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p), hi.max(p))
+        })
+}

@@ -1,0 +1,146 @@
+//! Levels from manifests: placement, batching, the shared cache, and clear errors for missing
+//! meshes, bad transforms and empty levels.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn cli(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn workdir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-level-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+const BOX: &str = "v 0 0 0\nv 2 0 0\nv 0 1 0\nv 2 1 0\nv 0 0 1\nv 2 0 1\nv 0 1 1\nv 2 1 1\n\
+                   f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
+
+fn translate(x: f64, z: f64) -> String {
+    format!("[1,0,0,0, 0,1,0,0, 0,0,1,0, {x},0,{z},1]")
+}
+
+fn manifest(dir: &Path, instances: &[String]) -> PathBuf {
+    let path = dir.join("level.json");
+    std::fs::write(
+        &path,
+        format!("{{\"name\":\"test\",\"instances\":[{}]}}", instances.join(",")),
+    )
+    .unwrap();
+    path
+}
+
+fn bake(dir: &Path, manifest: &Path) -> (i32, String, String) {
+    let out = dir.join("level.glb");
+    let report = dir.join("report.json");
+    let data = dir.join("cache");
+    cli(&[
+        "level",
+        manifest.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+        "--data-dir",
+        data.to_str().unwrap(),
+        "--set",
+        "level.batch_max_extent=20",
+    ])
+}
+
+#[test]
+fn instances_share_one_cook_and_a_rebake_is_all_cached() {
+    let dir = workdir("bake");
+    std::fs::write(dir.join("box.obj"), BOX).unwrap();
+    let instances: Vec<String> = (0..40)
+        .map(|i| {
+            format!(
+                "{{\"mesh\":\"box.obj\",\"transform\":{}}}",
+                translate((i % 8) as f64 * 5.0, (i / 8) as f64 * 5.0)
+            )
+        })
+        .collect();
+    let path = manifest(&dir, &instances);
+    let (code, stdout, stderr) = bake(&dir, &path);
+    assert_eq!(code, 0, "{stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    println!("{stdout}");
+    assert_eq!(
+        (report["instances"].as_u64(), report["unique_meshes"].as_u64()),
+        (Some(40), Some(1))
+    );
+    assert_eq!(report["cache_hits"], 0);
+    // 40 boxes over 35 × 20 units, batches at most 20 wide: a few batches, one draw call each.
+    let batches = report["batches"].as_u64().unwrap();
+    assert!((2..=8).contains(&batches), "{batches} batches");
+    assert_eq!(report["draw_calls_before"], 40);
+    assert_eq!(report["draw_calls_after"], batches);
+    let list: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("level.batches.json")).unwrap()).unwrap();
+    let covered: usize = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["instances"].as_array().unwrap().len())
+        .sum();
+    assert_eq!(covered, 40);
+    let glb = std::fs::read(dir.join("level.glb")).unwrap();
+    assert_eq!(&glb[..4], b"glTF");
+    let (code, _, stderr) = bake(&dir, &path);
+    assert_eq!(code, 0, "{stderr}");
+    let again: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(again["cache_hits"], 1, "the rebake is warm");
+    assert_eq!(again["triangles_after"], report["triangles_after"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_manifests_are_one_line_errors() {
+    let dir = workdir("errors");
+    std::fs::write(dir.join("box.obj"), BOX).unwrap();
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec![], "no instances"),
+        (
+            vec![format!(
+                "{{\"mesh\":\"missing.obj\",\"transform\":{}}}",
+                translate(0.0, 0.0)
+            )],
+            "`missing.obj` not found",
+        ),
+        (
+            vec!["{\"mesh\":\"box.obj\",\"transform\":[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0]}".into()],
+            "expected 16 numbers",
+        ),
+        (
+            vec!["{\"mesh\":\"box.obj\",\"transform\":[1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]}".into()],
+            "singular",
+        ),
+        // JSON has no NaN or infinity: such numbers fail the parse, with the place.
+        (
+            vec!["{\"mesh\":\"box.obj\",\"transform\":[1,0,0,0, 0,1,0,0, 0,0,1,0, 1e999,0,0,1]}".into()],
+            "number out of range at line 1",
+        ),
+        (
+            vec!["{\"mesh\":\"box.obj\",\"transform\":[1,0,0,0, 0,1,0,0, 0,0,1,0, NaN,0,0,1]}".into()],
+            "expected value at line 1",
+        ),
+    ];
+    for (instances, expected) in cases {
+        let path = manifest(&dir, &instances);
+        let (code, _, stderr) = bake(&dir, &path);
+        assert_eq!(code, 1, "{stderr}");
+        assert!(stderr.contains(expected), "expected {expected:?} in {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "one line: {stderr}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,18 +1,11 @@
 //! The binary as users run it: settings errors name the key, bad files exit non-zero with one
 //! line, and cook → eval works on a mesh written here.
 
-use std::process::Command;
+mod common;
 
 fn run(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
-        .args(args)
-        .output()
-        .expect("binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    let (code, stdout, stderr) = common::cli(args);
+    (code == 0, stdout, stderr)
 }
 
 fn temp(name: &str) -> std::path::PathBuf {

@@ -1,20 +1,9 @@
 //! Levels from manifests: placement, batching, the shared cache, and clear errors for missing
 //! meshes, bad transforms and empty levels.
 
+mod common;
+use common::cli;
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn cli(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn workdir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("occluder-cook-level-{name}-{}", std::process::id()));

@@ -3,7 +3,7 @@
 //! blob on disk, and a graceful SIGTERM.
 
 mod common;
-use common::{cuboid, torus};
+use common::{cli, cuboid, torus};
 use glam::Vec3;
 use occluder_cook::mesh::Mesh;
 use serde_json::Value;
@@ -397,18 +397,6 @@ fn the_cache_evicts_the_least_recently_used_result() {
     assert_eq!((status(&first), status(&second), status(&third)), (200, 404, 200));
     assert_eq!(metric(&base, "occluder_evictions_total"), 1.0);
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-fn cli(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 #[test]

@@ -93,8 +93,8 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Bake a level manifest into a few merged occluder batches, cooking each unique mesh once
-    /// through the same sled cache as the service.
+    /// Bake a level (a JSON manifest, or an OBJ whose groups are the instances) into a few merged
+    /// occluder batches, cooking each unique mesh once through the same sled cache as the service.
     Level {
         manifest: PathBuf,
         /// The level's occluder GLB: one mesh per batch.
@@ -338,7 +338,7 @@ fn run(cli: Cli) -> Result<()> {
                 ));
             }
             let settings = config::load(settings.config.as_deref(), &overrides)?;
-            let level = occluder_cook::level::load_manifest(&manifest)?;
+            let level = occluder_cook::level::load(&manifest)?;
             let dir = settings.service.data_dir();
             std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
             let store = service::store::sled::SledStore::open(&dir)

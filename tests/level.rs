@@ -133,3 +133,43 @@ fn bad_manifests_are_one_line_errors() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn an_obj_level_makes_each_group_an_instance() {
+    let dir = workdir("groups");
+    // OBJ indices count from the file's first vertex: the second box's faces refer to 9 to 16.
+    let second: String = BOX
+        .lines()
+        .map(|l| match l.strip_prefix("f ") {
+            Some(f) => {
+                let shifted: Vec<String> = f
+                    .split(' ')
+                    .map(|i| (i.parse::<u32>().unwrap() + 8).to_string())
+                    .collect();
+                format!("f {}\n", shifted.join(" "))
+            }
+            None => format!(
+                "{}\n",
+                l.trim().replacen("v 0 ", "v 10 ", 1).replacen("v 2 ", "v 12 ", 1)
+            ),
+        })
+        .collect();
+    let two_groups = format!("g first\n{BOX}g second\n{second}");
+    let path = dir.join("level.obj");
+    std::fs::write(&path, two_groups).unwrap();
+    let (code, stdout, stderr) = bake(&dir, &path);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("2 instances of 2 unique meshes (0 cached)"), "{stdout}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["triangles_before"], 24, "both boxes, each once");
+    let batches: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("level.batches.json")).unwrap()).unwrap();
+    let hi_x = batches
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["hi"][0].as_f64().unwrap())
+        .fold(0.0, f64::max);
+    assert_eq!(hi_x, 12.0, "the second box stays where its group put it");
+    let _ = std::fs::remove_dir_all(&dir);
+}

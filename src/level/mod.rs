@@ -56,16 +56,20 @@ pub enum LevelError {
     Cache(String),
 }
 
-/// A manifest with every instance checked: its mesh source and its matrix.
+/// A level with every instance checked: its mesh source and its matrix.
 pub struct Level {
     pub name: String,
     pub instances: Vec<(MeshRef, DMat4)>,
+    /// The meshes of an OBJ level's groups, for [`MeshRef::Group`].
+    pub groups: Vec<(String, Mesh, crate::mesh::IngestStats)>,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub enum MeshRef {
     File(PathBuf),
     Key(String),
+    /// A group of the level's own OBJ file.
+    Group(usize),
 }
 
 impl MeshRef {
@@ -73,8 +77,36 @@ impl MeshRef {
         match self {
             MeshRef::File(p) => p.display().to_string(),
             MeshRef::Key(k) => k.clone(),
+            MeshRef::Group(g) => format!("group {g:06}"),
         }
     }
+}
+
+/// A level from a JSON manifest, or from an OBJ file whose groups are the instances.
+pub fn load(path: &Path) -> Result<Level, LevelError> {
+    let is_obj = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+    if !is_obj {
+        return load_manifest(path);
+    }
+    let name = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| LevelError::Read {
+        path: name.clone(),
+        message: e.to_string(),
+    })?;
+    let groups = crate::mesh::load_obj_groups(&bytes).map_err(|e| LevelError::BadMesh {
+        mesh: name.clone(),
+        message: e.to_string(),
+    })?;
+    if groups.is_empty() {
+        return Err(LevelError::Empty);
+    }
+    Ok(Level {
+        name: path.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+        instances: (0..groups.len())
+            .map(|g| (MeshRef::Group(g), DMat4::IDENTITY))
+            .collect(),
+        groups,
+    })
 }
 
 fn is_key(s: &str) -> bool {
@@ -131,6 +163,7 @@ pub fn load_manifest(path: &Path) -> Result<Level, LevelError> {
     Ok(Level {
         name: manifest.name,
         instances,
+        groups: Vec::new(),
     })
 }
 
@@ -202,6 +235,19 @@ pub async fn bake(
         .par_iter()
         .map(|m| match m {
             MeshRef::Key(k) => Ok(((*m).clone(), k.clone(), None)),
+            MeshRef::Group(g) => {
+                let (_, mesh, stats) = &level.groups[*g];
+                // Kept as OBJ text, to cook it again should its result break.
+                let input = Input {
+                    format: "obj".into(),
+                    bytes: obj_text(mesh),
+                };
+                Ok((
+                    (*m).clone(),
+                    cache_key(mesh, &settings.cook),
+                    Some((input, mesh.clone(), stats.clone())),
+                ))
+            }
             MeshRef::File(path) => {
                 let bad = |message: String| LevelError::BadMesh {
                     mesh: path.display().to_string(),
@@ -380,6 +426,18 @@ fn occluder_from_glb(key: &str, glb: &[u8], report: Option<&[u8]>) -> Result<Occ
         source_triangles: report["input"]["triangles"].as_u64().unwrap_or(0) as usize,
         source_primitives: report["input"]["primitives"].as_u64().unwrap_or(1).max(1) as usize,
     })
+}
+
+fn obj_text(mesh: &Mesh) -> Vec<u8> {
+    use std::fmt::Write;
+    let mut text = String::new();
+    for p in &mesh.positions {
+        let _ = writeln!(text, "v {} {} {}", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        let _ = writeln!(text, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    text.into_bytes()
 }
 
 fn transformed(mesh: &Mesh, matrix: &DMat4) -> Mesh {

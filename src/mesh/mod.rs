@@ -147,6 +147,20 @@ pub fn load_bytes(bytes: &[u8], format: Format, base_dir: Option<&Path>) -> Resu
     weld(raw)
 }
 
+/// Each group of an OBJ file as its own welded mesh, with its name. Groups with no triangle
+/// left after welding are skipped.
+pub fn load_obj_groups(bytes: &[u8]) -> Result<Vec<(String, Mesh, IngestStats)>, IngestError> {
+    let mut meshes = Vec::new();
+    for (name, raw) in obj::read_groups(bytes)? {
+        match weld(raw) {
+            Ok((mesh, stats)) => meshes.push((name, mesh, stats)),
+            Err(IngestError::Empty(_)) => tracing::warn!("OBJ group {name} has no triangles; skipped"),
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(meshes)
+}
+
 /// Welds vertices with identical positions, drops degenerate triangles, and validates.
 pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
     if let Some((i, p)) = raw.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {

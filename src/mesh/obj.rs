@@ -3,7 +3,17 @@
 use super::{IngestError, RawMesh};
 use glam::Vec3;
 
+/// Every group and object as one mesh.
 pub fn read(bytes: &[u8]) -> Result<RawMesh, IngestError> {
+    let mut raw = RawMesh::default();
+    for (_, group) in read_groups(bytes)? {
+        raw.append(&group.positions, group.triangles.iter().map(|t| t.map(u64::from)))?;
+    }
+    Ok(raw)
+}
+
+/// Each group or object on its own, with its name.
+pub fn read_groups(bytes: &[u8]) -> Result<Vec<(String, RawMesh)>, IngestError> {
     let options = tobj::LoadOptions {
         triangulate: true,
         ignore_points: true,
@@ -37,8 +47,9 @@ pub fn read(bytes: &[u8]) -> Result<RawMesh, IngestError> {
         |_| Ok(Default::default()),
     )
     .map_err(|e| IngestError::malformed("OBJ", e.to_string()))?;
-    let mut raw = RawMesh::default();
+    let mut groups = Vec::with_capacity(models.len());
     for model in &models {
+        let mut raw = RawMesh::default();
         let positions: Vec<Vec3> = model
             .mesh
             .positions
@@ -51,6 +62,7 @@ pub fn read(bytes: &[u8]) -> Result<RawMesh, IngestError> {
             .chunks_exact(3)
             .map(|t| [t[0], t[1], t[2]].map(u64::from));
         raw.append(&positions, triangles)?;
+        groups.push((model.name.clone(), raw));
     }
-    Ok(raw)
+    Ok(groups)
 }

@@ -112,6 +112,20 @@ enum Command {
         #[command(flatten)]
         settings: SettingsArgs,
     },
+    /// Culling test of a level's occluders (ours or any other mesh): cameras inside the level,
+    /// instance boxes against a low-resolution depth buffer of the occluders, and ground truth
+    /// from the real meshes at 512 pixels.
+    CullEval {
+        level: PathBuf,
+        occluders: PathBuf,
+        #[arg(long, default_value_t = 100)]
+        cameras: usize,
+        /// Width of the occluder depth buffer (64 to 256, as runtimes use).
+        #[arg(long, default_value_t = 128)]
+        pixels: usize,
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Cook and evaluate every mesh of a corpus; print a table and write JSON.
     Bench {
         /// Folder of meshes [default: $OCCLUDER_CORPUS or ../shared/meshes].
@@ -377,6 +391,37 @@ fn run(cli: Cli) -> Result<()> {
                 r.draw_calls_after,
                 r.timings_ms.total()
             );
+        }
+        Command::CullEval {
+            level,
+            occluders,
+            cameras,
+            pixels,
+            json,
+        } => {
+            if !(64..=256).contains(&pixels) || cameras == 0 {
+                bail!("--pixels must be 64 to 256 and --cameras at least 1");
+            }
+            let level = occluder_cook::level::load(&level)?;
+            let (occluder, _) =
+                mesh::load_file(&occluders).with_context(|| format!("occluders {}", occluders.display()))?;
+            let report = occluder_cook::level::cull::cull_eval(&level, &occluder, cameras, pixels)
+                .map_err(anyhow::Error::msg)?;
+            println!(
+                "{} cameras, {} instances, {} occluder triangles at {} px: culled {:.1}% of the instances in view, wrongly culled {}",
+                report.cameras,
+                report.instances,
+                report.occluder_triangles,
+                pixels,
+                report.culled_share * 100.0,
+                report.wrongly_culled
+            );
+            if let Some((eye, dir, n)) = report.worst_camera {
+                println!("worst camera at {eye:?} looking {dir:?}: {n} wrongly culled");
+            }
+            if let Some(path) = json {
+                write(&path, &serde_json::to_vec_pretty(&report)?)?;
+            }
         }
         Command::Bench { corpus, json, settings } => {
             let settings = settings.load()?;

@@ -173,3 +173,36 @@ fn an_obj_level_makes_each_group_an_instance() {
     assert_eq!(hi_x, 12.0, "the second box stays where its group put it");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// cull-eval catches a wrong occluder, and passes the baked one.
+#[test]
+fn cull_eval_catches_an_occluder_that_hides_what_is_visible() {
+    let dir = workdir("cull");
+    std::fs::write(dir.join("box.obj"), BOX).unwrap();
+    let instances: Vec<String> = (0..12)
+        .map(|i| {
+            format!(
+                "{{\"mesh\":\"box.obj\",\"transform\":{}}}",
+                translate((i % 4) as f64 * 6.0, (i / 4) as f64 * 6.0)
+            )
+        })
+        .collect();
+    let path = manifest(&dir, &instances);
+    let (code, _, stderr) = bake(&dir, &path);
+    assert_eq!(code, 0, "{stderr}");
+    let level = path.to_str().unwrap();
+    let baked = dir.join("level.glb");
+    let (code, stdout, stderr) = cli(&["cull-eval", level, baked.to_str().unwrap(), "--cameras", "40"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("wrongly culled 0"), "{stdout}");
+    // A wall across the whole level hides boxes that are in plain sight.
+    let wall = dir.join("wall.obj");
+    std::fs::write(&wall, "v 9 -5 -50\nv 9 5 -50\nv 9 5 50\nv 9 -5 50\nf 1 2 3 4\n").unwrap();
+    let (code, stdout, stderr) = cli(&["cull-eval", level, wall.to_str().unwrap(), "--cameras", "40"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        !stdout.contains("wrongly culled 0"),
+        "a wrong occluder must be caught: {stdout}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

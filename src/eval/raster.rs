@@ -94,9 +94,27 @@ impl View {
 
 /// Calls `visit(pixel index, depth)` for every pixel centre the projected triangle covers.
 /// Edges are inclusive, so triangles sharing an edge leave no crack.
-pub fn rasterize(view: &View, tri: &[DVec3; 3], mut visit: impl FnMut(usize, f64)) {
+pub fn rasterize(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f64)) {
+    rasterize_with(view, tri, Coverage::Centres, visit);
+}
+
+/// Like [`rasterize`], but only pixels the triangle covers whole, each with the farthest depth
+/// over the pixel: what an occluder certainly hides at this resolution.
+pub fn rasterize_inner(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f64)) {
+    rasterize_with(view, tri, Coverage::Whole, visit);
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Coverage {
+    /// Pixels whose centre the triangle covers, at the centre's depth.
+    Centres,
+    /// Pixels wholly inside the triangle, at the farthest depth of their corners.
+    Whole,
+}
+
+fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, mut visit: impl FnMut(usize, f64)) {
     match view.lens {
-        Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), |d| d, &mut visit),
+        Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), coverage, |d| d, &mut visit),
         Lens::Perspective { eye } => {
             // Clip to the near plane in front of the eye; 1/z is what varies linearly on screen.
             let near = view.tolerance;
@@ -117,23 +135,34 @@ pub fn rasterize(view: &View, tri: &[DVec3; 3], mut visit: impl FnMut(usize, f64
                     let q = view.project(v);
                     DVec3::new(q.x, q.y, 1.0 / q.z)
                 });
-                fill(view, p, |w| 1.0 / w, &mut visit);
+                fill(view, p, coverage, |w| 1.0 / w, &mut visit);
             }
         }
     }
 }
 
-/// Visits the pixel centres inside the screen triangle `p` (x, y, a value that varies linearly
-/// on screen), with `depth` turning the interpolated value into a depth.
-fn fill(view: &View, p: [DVec3; 3], depth: impl Fn(f64) -> f64, visit: &mut impl FnMut(usize, f64)) {
+/// Visits the pixels of the screen triangle `p` (x, y, a value that varies linearly on screen)
+/// by `coverage`, with `depth` turning the interpolated value into a depth.
+fn fill(
+    view: &View,
+    p: [DVec3; 3],
+    coverage: Coverage,
+    depth: impl Fn(f64) -> f64,
+    visit: &mut impl FnMut(usize, f64),
+) {
     let q = p.map(|v| v.truncate());
     let lo = q[0].min(q[1]).min(q[2]);
     let hi = q[0].max(q[1]).max(q[2]);
     let n = view.pixels as f64;
-    // The pixels i whose centres i + 0.5 lie in [lo, hi]. Most triangles of a detailed mesh
-    // cover no centre at all, so this comes first, without rounding calls.
-    let centres = |lo: f64, hi: f64| -> Option<(usize, usize)> {
-        let (a, b) = ((lo - 0.5).max(0.0), (hi - 0.5).min(n - 1.0));
+    // The pixels i whose sample points (the centre i + 0.5, or the whole [i, i + 1]) lie in
+    // [lo, hi]. Most triangles of a detailed mesh cover none, so this comes first, without
+    // rounding calls.
+    let (inset, reach) = match coverage {
+        Coverage::Centres => (0.5, 0.5),
+        Coverage::Whole => (0.0, 1.0),
+    };
+    let pixels = |lo: f64, hi: f64| -> Option<(usize, usize)> {
+        let (a, b) = ((lo - inset).max(0.0), (hi - reach).min(n - 1.0));
         // Also rejects NaN.
         if a.partial_cmp(&b).is_none_or(|o| o.is_gt()) {
             return None;
@@ -142,21 +171,42 @@ fn fill(view: &View, p: [DVec3; 3], depth: impl Fn(f64) -> f64, visit: &mut impl
         let last = b as usize;
         (first <= last).then_some((first, last))
     };
-    let (Some((x0, x1)), Some((y0, y1))) = (centres(lo.x, hi.x), centres(lo.y, hi.y)) else {
+    let (Some((x0, x1)), Some((y0, y1))) = (pixels(lo.x, hi.x), pixels(lo.y, hi.y)) else {
         return;
     };
     let area = cross(q[1] - q[0], q[2] - q[0]);
     if area == 0.0 || !area.is_finite() {
         return;
     }
+    let weights = |c: DVec2| {
+        [
+            cross(q[2] - q[1], c - q[1]) / area,
+            cross(q[0] - q[2], c - q[2]) / area,
+            cross(q[1] - q[0], c - q[0]) / area,
+        ]
+    };
+    let value = |w: [f64; 3]| w[0] * p[0].z + w[1] * p[1].z + w[2] * p[2].z;
     for y in y0..=y1 {
         for x in x0..=x1 {
-            let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-            let w0 = cross(q[2] - q[1], c - q[1]) / area;
-            let w1 = cross(q[0] - q[2], c - q[2]) / area;
-            let w2 = cross(q[1] - q[0], c - q[0]) / area;
-            if w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0 {
-                visit(y * view.pixels + x, depth(w0 * p[0].z + w1 * p[1].z + w2 * p[2].z));
+            let (x_f, y_f) = (x as f64, y as f64);
+            match coverage {
+                Coverage::Centres => {
+                    let w = weights(DVec2::new(x_f + 0.5, y_f + 0.5));
+                    if w.iter().all(|&v| v >= 0.0) {
+                        visit(y * view.pixels + x, depth(value(w)));
+                    }
+                }
+                Coverage::Whole => {
+                    let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                        .map(|(dx, dy)| weights(DVec2::new(x_f + dx, y_f + dy)));
+                    if corners.iter().flatten().all(|&v| v >= 0.0) {
+                        let farthest = corners
+                            .iter()
+                            .map(|&w| depth(value(w)))
+                            .fold(f64::NEG_INFINITY, f64::max);
+                        visit(y * view.pixels + x, farthest);
+                    }
+                }
             }
         }
     }
@@ -173,7 +223,13 @@ pub fn rasterize_mesh(view: &View, mesh: &Mesh, mut visit: impl FnMut(usize, f64
         Lens::Orthographic { .. } => {
             let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
             for t in &mesh.triangles {
-                fill(view, t.map(|i| projected[i as usize]), |d| d, &mut visit);
+                fill(
+                    view,
+                    t.map(|i| projected[i as usize]),
+                    Coverage::Centres,
+                    |d| d,
+                    &mut visit,
+                );
             }
         }
         Lens::Perspective { .. } => {

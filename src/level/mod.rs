@@ -5,6 +5,7 @@
 //! placed and clustered spatially into batches ([`batch`]), and each batch is one glTF mesh.
 
 pub mod batch;
+pub mod cull;
 
 use crate::config::Settings;
 use crate::cook::cook;

@@ -1,6 +1,7 @@
 //! Spatial batching: placed occluders split at the median of their centres, along the longest
 //! axis, until every batch is within the triangle and extent limits.
 
+use crate::mesh::point_bounds;
 use glam::DVec3;
 
 /// One placed occluder, for batching: its bounds and triangles.
@@ -17,22 +18,14 @@ pub fn cluster(placed: &[Placed], max_triangles: usize, max_extent: f64) -> Vec<
     let mut done = Vec::new();
     let mut todo = vec![(0..placed.len()).collect::<Vec<usize>>()];
     while let Some(mut group) = todo.pop() {
-        let (lo, hi) = group
-            .iter()
-            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &i| {
-                (lo.min(placed[i].lo), hi.max(placed[i].hi))
-            });
+        let (lo, hi) = point_bounds(group.iter().flat_map(|&i| [placed[i].lo, placed[i].hi]));
         let triangles: usize = group.iter().map(|&i| placed[i].triangles).sum();
         if group.len() <= 1 || (triangles <= max_triangles && (hi - lo).max_element() <= max_extent) {
             done.push(group);
             continue;
         }
         let centre = |i: usize| (placed[i].lo + placed[i].hi) * 0.5;
-        let (clo, chi) = group
-            .iter()
-            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &i| {
-                (lo.min(centre(i)), hi.max(centre(i)))
-            });
+        let (clo, chi) = point_bounds(group.iter().map(|&i| centre(i)));
         let spread = chi - clo;
         let axis = (0..3)
             .max_by(|&a, &b| spread[a].total_cmp(&spread[b]))

@@ -9,7 +9,7 @@
 
 use super::{Level, MeshRef};
 use crate::eval::raster::{View, rasterize, rasterize_inner};
-use crate::mesh::{Mesh, load_file};
+use crate::mesh::{Mesh, load_file, point_bounds};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -50,20 +50,15 @@ pub fn cull_eval(level: &Level, occluder: &Mesh, cameras: usize, pixels: usize) 
         .instances
         .iter()
         .map(|(m, matrix)| {
-            meshes[m]
-                .positions
-                .iter()
-                .map(|p| matrix.transform_point3(p.as_dvec3()))
-                .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-                    (lo.min(p), hi.max(p))
-                })
+            point_bounds(
+                meshes[m]
+                    .positions
+                    .iter()
+                    .map(|p| matrix.transform_point3(p.as_dvec3())),
+            )
         })
         .collect();
-    let (lo, hi) = boxes
-        .iter()
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), (l, h)| {
-            (a.min(*l), b.max(*h))
-        });
+    let (lo, hi) = point_bounds(boxes.iter().flat_map(|&(l, h)| [l, h]));
     let size = hi - lo;
     let tolerance = 1e-4 * size.length();
     let mut rng = fastrand::Rng::with_seed(0xc0ffee);
@@ -164,11 +159,7 @@ fn box_on_screen(view: &View, (lo, hi): &(DVec3, DVec3)) -> Option<ScreenBox> {
             near: 0.0,
         });
     }
-    let (a, b) = corners
-        .iter()
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), c| {
-            (a.min(*c), b.max(*c))
-        });
+    let (a, b) = point_bounds(corners.iter().copied());
     if b.x < 0.0 || b.y < 0.0 || a.x > n || a.y > n {
         return None;
     }

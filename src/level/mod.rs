@@ -10,7 +10,7 @@ pub mod cull;
 use crate::config::Settings;
 use crate::cook::cook;
 use crate::key::cache_key;
-use crate::mesh::{Format, Mesh, glb, load_bytes};
+use crate::mesh::{Format, Mesh, glb, load_bytes, point_bounds};
 use crate::service::store::{Input, ResultMeta, Store};
 use batch::Placed;
 use glam::{DMat4, DVec3, Vec3};
@@ -358,8 +358,7 @@ pub async fn bake(
     let mut batches = Vec::with_capacity(groups.len());
     let mut nodes = Vec::with_capacity(groups.len());
     for (b, (group, (solid, panels))) in groups.iter().zip(&merged).enumerate() {
-        let lo = group.iter().fold(DVec3::INFINITY, |lo, &i| lo.min(placed[i].lo));
-        let hi = group.iter().fold(DVec3::NEG_INFINITY, |hi, &i| hi.max(placed[i].hi));
+        let (lo, hi) = point_bounds(group.iter().flat_map(|&i| [placed[i].lo, placed[i].hi]));
         let info = BatchInfo {
             name: format!("batch-{b}"),
             lo: lo.to_array(),
@@ -459,12 +458,11 @@ fn transformed(mesh: &Mesh, matrix: &DMat4) -> Mesh {
 }
 
 fn transformed_bounds(solid: &Mesh, panels: &Mesh, matrix: &DMat4) -> (DVec3, DVec3) {
-    solid
-        .positions
-        .iter()
-        .chain(&panels.positions)
-        .map(|p: &Vec3| matrix.transform_point3(p.as_dvec3()))
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(p), hi.max(p))
-        })
+    point_bounds(
+        solid
+            .positions
+            .iter()
+            .chain(&panels.positions)
+            .map(|p: &Vec3| matrix.transform_point3(p.as_dvec3())),
+    )
 }

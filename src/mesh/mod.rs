@@ -227,6 +227,15 @@ pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
     ))
 }
 
+/// The bounds (min, max) of points; (+∞, −∞) when there are none.
+pub fn point_bounds(points: impl IntoIterator<Item = glam::DVec3>) -> (glam::DVec3, glam::DVec3) {
+    points
+        .into_iter()
+        .fold((glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p), hi.max(p))
+        })
+}
+
 impl Mesh {
     /// Adds `other`'s triangles, without welding.
     pub fn append(&mut self, other: &Mesh) {

@@ -15,7 +15,7 @@
 
 use super::rectangle::{self, CellRect};
 use super::{Panel, Shape};
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, point_bounds};
 use glam::{DQuat, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -87,13 +87,7 @@ pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -
     passes
         .par_iter()
         .flat_map_iter(|&(turn, axis)| {
-            let (lo, hi) = mesh
-                .positions
-                .iter()
-                .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-                    let q = turn * p.as_dvec3();
-                    (lo.min(q), hi.max(q))
-                });
+            let (lo, hi) = point_bounds(mesh.positions.iter().map(|p| turn * p.as_dvec3()));
             let size = (hi - lo).max_element();
             let cell = size / grid as f64;
             if cell <= 0.0 || !cell.is_finite() {

@@ -206,3 +206,59 @@ fn cull_eval_catches_an_occluder_that_hides_what_is_visible() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A glTF scene whose one box mesh is placed by three nodes, one of them through a parent that
+/// moves and mirrors it.
+fn box_scene() -> String {
+    use base64::Engine;
+    let corners: Vec<f32> = (0..8)
+        .flat_map(|i| [(i & 1) as f32 * 2.0, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32])
+        .collect();
+    let faces: [[u16; 4]; 6] = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
+    let indices: Vec<u16> = faces
+        .iter()
+        .flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]])
+        .collect();
+    let mut buffer: Vec<u8> = corners.iter().flat_map(|v| v.to_le_bytes()).collect();
+    buffer.extend(indices.iter().flat_map(|i| i.to_le_bytes()));
+    let data = base64::engine::general_purpose::STANDARD.encode(&buffer);
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0,1,2]}}],
+        "nodes":[{{"mesh":0}},{{"mesh":0,"translation":[10,0,0]}},{{"translation":[0,0,10],"scale":[-1,1,1],"children":[3]}},{{"mesh":0}}],
+        "meshes":[{{"name":"box","primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+        "buffers":[{{"byteLength":{len},"uri":"data:application/octet-stream;base64,{data}"}}],
+        "bufferViews":[{{"buffer":0,"byteLength":96}},{{"buffer":0,"byteOffset":96,"byteLength":72}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":8,"type":"VEC3","min":[0,0,0],"max":[2,1,1]}},
+                     {{"bufferView":1,"componentType":5123,"count":36,"type":"SCALAR"}}]}}"#,
+        len = buffer.len()
+    )
+}
+
+#[test]
+fn a_gltf_scene_makes_each_mesh_node_an_instance_of_one_unique_mesh() {
+    let dir = workdir("scene");
+    let path = dir.join("level.gltf");
+    std::fs::write(&path, box_scene()).unwrap();
+    let (code, stdout, stderr) = bake(&dir, &path);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("3 instances of 1 unique meshes (0 cached)"), "{stdout}");
+    let batches: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("level.batches.json")).unwrap()).unwrap();
+    let bound = |b: &serde_json::Value, side: &str, axis: usize| b[side][axis].as_f64().unwrap();
+    let all = batches.as_array().unwrap();
+    let lo_x = all.iter().map(|b| bound(b, "lo", 0)).fold(f64::MAX, f64::min);
+    let hi_x = all.iter().map(|b| bound(b, "hi", 0)).fold(f64::MIN, f64::max);
+    let hi_z = all.iter().map(|b| bound(b, "hi", 2)).fold(f64::MIN, f64::max);
+    // The occluders lie inside the placed boxes: x from -2 (mirrored) to 12, z up to 11.
+    assert!(lo_x >= -2.0 && lo_x < -1.5, "the mirrored instance reaches x = {lo_x}");
+    assert!(hi_x <= 12.0 && hi_x > 11.5, "the moved instance reaches x = {hi_x}");
+    assert!(hi_z <= 11.0 && hi_z > 10.5, "the child instance reaches z = {hi_z}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

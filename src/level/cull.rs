@@ -41,7 +41,7 @@ pub fn cull_eval(level: &Level, occluder: &Mesh, cameras: usize, pixels: usize) 
         }
         let mesh = match m {
             MeshRef::File(path) => load_file(path).map_err(|e| format!("{}: {e}", path.display()))?.0,
-            MeshRef::Group(g) => level.groups[*g].1.clone(),
+            MeshRef::Part(p) => level.parts[*p].1.clone(),
             MeshRef::Key(k) => return Err(format!("mesh {k} is only a key: cull-eval needs the real meshes")),
         };
         meshes.insert(m, mesh);

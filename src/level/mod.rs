@@ -61,16 +61,16 @@ pub enum LevelError {
 pub struct Level {
     pub name: String,
     pub instances: Vec<(MeshRef, DMat4)>,
-    /// The meshes of an OBJ level's groups, for [`MeshRef::Group`].
-    pub groups: Vec<(String, Mesh, crate::mesh::IngestStats)>,
+    /// The meshes inside the level file itself (OBJ groups, glTF meshes), for [`MeshRef::Part`].
+    pub parts: Vec<crate::mesh::Part>,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub enum MeshRef {
     File(PathBuf),
     Key(String),
-    /// A group of the level's own OBJ file.
-    Group(usize),
+    /// A mesh inside the level file itself: an OBJ group or a glTF mesh.
+    Part(usize),
 }
 
 impl MeshRef {
@@ -78,36 +78,65 @@ impl MeshRef {
         match self {
             MeshRef::File(p) => p.display().to_string(),
             MeshRef::Key(k) => k.clone(),
-            MeshRef::Group(g) => format!("group {g:06}"),
+            MeshRef::Part(p) => format!("part {p:06}"),
         }
     }
 }
 
-/// A level from a JSON manifest, or from an OBJ file whose groups are the instances.
+/// A level from a JSON manifest, an OBJ file whose groups are the instances, or a glTF scene
+/// whose mesh nodes are the instances (a mesh placed by many nodes is one unique mesh).
 pub fn load(path: &Path) -> Result<Level, LevelError> {
-    let is_obj = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"));
-    if !is_obj {
+    let format = crate::mesh::Format::from_extension(path).ok();
+    let Some(format) = format.filter(|f| *f != Format::Stl) else {
         return load_manifest(path);
-    }
+    };
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|e| LevelError::Read {
         path: name.clone(),
         message: e.to_string(),
     })?;
-    let groups = crate::mesh::load_obj_groups(&bytes).map_err(|e| LevelError::BadMesh {
+    let bad = |e: crate::mesh::IngestError| LevelError::BadMesh {
         mesh: name.clone(),
         message: e.to_string(),
-    })?;
-    if groups.is_empty() {
+    };
+    let (parts, instances) = if format == Format::Obj {
+        let groups = crate::mesh::load_obj_groups(&bytes).map_err(bad)?;
+        let instances = (0..groups.len()).map(|g| (MeshRef::Part(g), DMat4::IDENTITY)).collect();
+        (groups, instances)
+    } else {
+        let (meshes, placements) = crate::mesh::load_gltf_instances(&bytes, path.parent()).map_err(bad)?;
+        let instances = placements
+            .into_iter()
+            .map(|(m, world)| (MeshRef::Part(m), world))
+            .collect();
+        (meshes, instances)
+    };
+    let level = Level {
+        name: path.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+        instances,
+        parts,
+    };
+    if level.instances.is_empty() {
         return Err(LevelError::Empty);
     }
-    Ok(Level {
-        name: path.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
-        instances: (0..groups.len())
-            .map(|g| (MeshRef::Group(g), DMat4::IDENTITY))
-            .collect(),
-        groups,
-    })
+    for (index, (_, matrix)) in level.instances.iter().enumerate() {
+        check_transform(matrix).map_err(|why| LevelError::BadTransform {
+            index,
+            why: why.to_string(),
+        })?;
+    }
+    Ok(level)
+}
+
+/// Why a placement cannot be used, if it cannot.
+fn check_transform(matrix: &DMat4) -> Result<(), &'static str> {
+    if !matrix.is_finite() {
+        return Err("not finite (NaN or infinity)");
+    }
+    if glam::DMat3::from_mat4(*matrix).determinant().abs() < 1e-12 {
+        return Err("singular (it flattens the mesh)");
+    }
+    Ok(())
 }
 
 fn is_key(s: &str) -> bool {
@@ -151,20 +180,14 @@ pub fn load_manifest(path: &Path) -> Result<Level, LevelError> {
             .as_slice()
             .try_into()
             .map_err(|_| bad(&format!("expected 16 numbers, got {}", spec.transform.len())))?;
-        if columns.iter().any(|v| !v.is_finite()) {
-            return Err(bad("not finite (NaN or infinity)"));
-        }
         let matrix = DMat4::from_cols_array(&columns);
-        let det = glam::DMat3::from_mat4(matrix).determinant();
-        if det.abs() < 1e-12 {
-            return Err(bad("singular (it flattens the mesh)"));
-        }
+        check_transform(&matrix).map_err(bad)?;
         instances.push((mesh, matrix));
     }
     Ok(Level {
         name: manifest.name,
         instances,
-        groups: Vec::new(),
+        parts: Vec::new(),
     })
 }
 
@@ -236,8 +259,8 @@ pub async fn bake(
         .par_iter()
         .map(|m| match m {
             MeshRef::Key(k) => Ok(((*m).clone(), k.clone(), None)),
-            MeshRef::Group(g) => {
-                let (_, mesh, stats) = &level.groups[*g];
+            MeshRef::Part(p) => {
+                let (_, mesh, stats) = &level.parts[*p];
                 // Kept as OBJ text, to cook it again should its result break.
                 let input = Input {
                     format: "obj".into(),

@@ -30,16 +30,55 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestErro
 
 fn read_scene(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
     let buffers = load_buffers(gltf, base_dir)?;
+    let mut raw = RawMesh::default();
+    walk_scene(gltf, &mut |mesh, world| read_mesh(&mesh, world, &buffers, &mut raw))?;
+    Ok(raw)
+}
+
+/// A glTF scene as a level: each mesh once, in its own space, with its name, and each node that
+/// places a mesh as (mesh index, world transform).
+pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<Instances, IngestError> {
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| IngestError::malformed(FORMAT, e.to_string()))?;
+    let buffers = load_buffers(&gltf, base_dir)?;
+    let mut placements = Vec::new();
+    walk_scene(&gltf, &mut |mesh, world| {
+        placements.push((mesh.index(), world));
+        Ok(())
+    })?;
+    let meshes = gltf
+        .meshes()
+        .map(|mesh| {
+            let mut raw = RawMesh::default();
+            read_mesh(&mesh, Mat4::IDENTITY, &buffers, &mut raw)?;
+            let name = mesh
+                .name()
+                .map_or_else(|| format!("mesh {}", mesh.index()), str::to_string);
+            Ok((name, raw))
+        })
+        .collect::<Result<_, IngestError>>()?;
+    Ok(Instances { meshes, placements })
+}
+
+/// What [`read_instances`] finds.
+pub struct Instances {
+    pub meshes: Vec<(String, RawMesh)>,
+    pub placements: Vec<(usize, Mat4)>,
+}
+
+/// Calls `found(mesh, world transform)` for every node of the default scene that has a mesh.
+fn walk_scene(
+    gltf: &gltf::Gltf,
+    found: &mut dyn FnMut(gltf::Mesh, Mat4) -> Result<(), IngestError>,
+) -> Result<(), IngestError> {
     let scene = gltf
         .default_scene()
         .or_else(|| gltf.scenes().next())
         .ok_or_else(|| IngestError::malformed(FORMAT, "the file has no scene"))?;
-    let mut raw = RawMesh::default();
     let mut path = Vec::new();
     for node in scene.nodes() {
-        visit(&node, Mat4::IDENTITY, &buffers, &mut path, &mut raw)?;
+        visit(&node, Mat4::IDENTITY, &mut path, found)?;
     }
-    Ok(raw)
+    Ok(())
 }
 
 fn load_buffers(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<Vec<Vec<u8>>, IngestError> {
@@ -102,24 +141,28 @@ fn read_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, IngestError> 
 fn visit(
     node: &gltf::Node,
     parent: Mat4,
-    buffers: &[Vec<u8>],
     path: &mut Vec<usize>,
-    raw: &mut RawMesh,
+    found: &mut dyn FnMut(gltf::Mesh, Mat4) -> Result<(), IngestError>,
 ) -> Result<(), IngestError> {
     if path.contains(&node.index()) {
         return Err(IngestError::NodeCycle(node.index()));
     }
     let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
     if let Some(mesh) = node.mesh() {
-        for primitive in mesh.primitives() {
-            read_primitive(&primitive, world, buffers, raw)?;
-        }
+        found(mesh, world)?;
     }
     path.push(node.index());
     for child in node.children() {
-        visit(&child, world, buffers, path, raw)?;
+        visit(&child, world, path, found)?;
     }
     path.pop();
+    Ok(())
+}
+
+fn read_mesh(mesh: &gltf::Mesh, world: Mat4, buffers: &[Vec<u8>], raw: &mut RawMesh) -> Result<(), IngestError> {
+    for primitive in mesh.primitives() {
+        read_primitive(&primitive, world, buffers, raw)?;
+    }
     Ok(())
 }
 

@@ -147,18 +147,49 @@ pub fn load_bytes(bytes: &[u8], format: Format, base_dir: Option<&Path>) -> Resu
     weld(raw)
 }
 
+/// A named mesh inside a level file (an OBJ group, a glTF mesh), welded.
+pub type Part = (String, Mesh, IngestStats);
+
 /// Each group of an OBJ file as its own welded mesh, with its name. Groups with no triangle
 /// left after welding are skipped.
-pub fn load_obj_groups(bytes: &[u8]) -> Result<Vec<(String, Mesh, IngestStats)>, IngestError> {
-    let mut meshes = Vec::new();
-    for (name, raw) in obj::read_groups(bytes)? {
-        match weld(raw) {
-            Ok((mesh, stats)) => meshes.push((name, mesh, stats)),
-            Err(IngestError::Empty(_)) => tracing::warn!("OBJ group {name} has no triangles; skipped"),
-            Err(e) => return Err(e),
-        }
+pub fn load_obj_groups(bytes: &[u8]) -> Result<Vec<Part>, IngestError> {
+    Ok(weld_parts(obj::read_groups(bytes)?)?.into_iter().flatten().collect())
+}
+
+/// A glTF scene's meshes, each once and in its own space, and the nodes that place them:
+/// (index into the meshes, world transform). Meshes with no triangles are left out, with the
+/// nodes that place them.
+pub fn load_gltf_instances(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+) -> Result<(Vec<Part>, Vec<(usize, glam::DMat4)>), IngestError> {
+    let scene = gltf_in::read_instances(bytes, base_dir)?;
+    let mut index = Vec::with_capacity(scene.meshes.len());
+    let mut parts = Vec::new();
+    for part in weld_parts(scene.meshes)? {
+        index.push(part.is_some().then_some(parts.len()));
+        parts.extend(part);
     }
-    Ok(meshes)
+    let placements = scene
+        .placements
+        .into_iter()
+        .filter_map(|(mesh, world)| Some((index[mesh]?, world.as_dmat4())))
+        .collect();
+    Ok((parts, placements))
+}
+
+/// Welds each named mesh; one that has no triangle left is `None`, with a warning.
+fn weld_parts(raws: Vec<(String, RawMesh)>) -> Result<Vec<Option<Part>>, IngestError> {
+    raws.into_iter()
+        .map(|(name, raw)| match weld(raw) {
+            Ok((mesh, stats)) => Ok(Some((name, mesh, stats))),
+            Err(IngestError::Empty(_)) => {
+                tracing::warn!("{name} has no triangles; skipped");
+                Ok(None)
+            }
+            Err(e) => Err(e),
+        })
+        .collect()
 }
 
 /// Welds vertices with identical positions, drops degenerate triangles, and validates.

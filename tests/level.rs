@@ -257,8 +257,8 @@ fn a_gltf_scene_makes_each_mesh_node_an_instance_of_one_unique_mesh() {
     let hi_x = all.iter().map(|b| bound(b, "hi", 0)).fold(f64::MIN, f64::max);
     let hi_z = all.iter().map(|b| bound(b, "hi", 2)).fold(f64::MIN, f64::max);
     // The occluders lie inside the placed boxes: x from -2 (mirrored) to 12, z up to 11.
-    assert!(lo_x >= -2.0 && lo_x < -1.5, "the mirrored instance reaches x = {lo_x}");
-    assert!(hi_x <= 12.0 && hi_x > 11.5, "the moved instance reaches x = {hi_x}");
-    assert!(hi_z <= 11.0 && hi_z > 10.5, "the child instance reaches z = {hi_z}");
+    assert!((-2.0..-1.5).contains(&lo_x), "the mirrored instance reaches x = {lo_x}");
+    assert!(hi_x > 11.5 && hi_x <= 12.0, "the moved instance reaches x = {hi_x}");
+    assert!(hi_z > 10.5 && hi_z <= 11.0, "the child instance reaches z = {hi_z}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -162,10 +162,7 @@ pub type Placement = (usize, glam::DMat4);
 /// A glTF scene's meshes, each once and in its own space, and the nodes that place them:
 /// (index into the meshes, world transform). Meshes with no triangles are left out, with the
 /// nodes that place them.
-pub fn load_gltf_instances(
-    bytes: &[u8],
-    base_dir: Option<&Path>,
-) -> Result<(Vec<Part>, Vec<Placement>), IngestError> {
+pub fn load_gltf_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<(Vec<Part>, Vec<Placement>), IngestError> {
     let scene = gltf_in::read_instances(bytes, base_dir)?;
     let mut index = Vec::with_capacity(scene.meshes.len());
     let mut parts = Vec::new();

@@ -262,3 +262,37 @@ fn a_gltf_scene_makes_each_mesh_node_an_instance_of_one_unique_mesh() {
     assert!(hi_z > 10.5 && hi_z <= 11.0, "the child instance reaches z = {hi_z}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn faces_between_touching_occluders_are_dropped() {
+    let dir = workdir("touching");
+    std::fs::write(dir.join("box.obj"), BOX).unwrap();
+    // Three boxes 2 × 1 × 1: the second beside the first along x, the third on top of the first.
+    let placed = [
+        translate(0.0, 0.0),
+        translate(2.0, 0.0),
+        "[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,1,0,1]".to_string(),
+    ];
+    let instances: Vec<String> = placed
+        .iter()
+        .map(|t| format!("{{\"mesh\":\"box.obj\",\"transform\":{t}}}"))
+        .collect();
+    let path = manifest(&dir, &instances);
+    let (code, _, stderr) = bake(&dir, &path);
+    assert_eq!(code, 0, "{stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    // Two contacts, each a pair of faces of two triangles.
+    assert_eq!(report["hidden_triangles_removed"], 8, "{report}");
+    assert_eq!(report["triangles_after"], 36 - 8);
+    let baked = dir.join("level.glb");
+    let (code, stdout, stderr) = cli(&[
+        "cull-eval",
+        path.to_str().unwrap(),
+        baked.to_str().unwrap(),
+        "--cameras",
+        "20",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("wrongly culled 0"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

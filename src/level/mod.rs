@@ -6,6 +6,7 @@
 
 pub mod batch;
 pub mod cull;
+pub mod hidden;
 
 use crate::config::Settings;
 use crate::cook::cook;
@@ -226,6 +227,8 @@ pub struct LevelReport {
     pub triangles_before: usize,
     /// Occluder triangles over all batches.
     pub triangles_after: usize,
+    /// Triangles dropped where placed occluders meet face to face (counted out of `triangles_after`).
+    pub hidden_triangles_removed: usize,
     /// One per primitive of each placed mesh.
     pub draw_calls_before: usize,
     pub draw_calls_after: usize,
@@ -365,7 +368,7 @@ pub async fn bake(
         settings.level.batch_max_triangles,
         settings.level.batch_max_extent,
     );
-    let merged: Vec<(Mesh, Mesh)> = groups
+    let merged: Vec<(Mesh, Mesh, usize)> = groups
         .par_iter()
         .map(|group| {
             let (mut solid, mut panels) = (Mesh::default(), Mesh::default());
@@ -375,12 +378,14 @@ pub async fn bake(
                 solid.append(&transformed(&o.solid, matrix));
                 panels.append(&transformed(&o.panels, matrix));
             }
-            (solid, panels)
+            let hidden = hidden::remove_hidden_faces(&mut solid);
+            (solid, panels, hidden)
         })
         .collect();
+    let hidden_triangles_removed = merged.iter().map(|m| m.2).sum();
     let mut batches = Vec::with_capacity(groups.len());
     let mut nodes = Vec::with_capacity(groups.len());
-    for (b, (group, (solid, panels))) in groups.iter().zip(&merged).enumerate() {
+    for (b, (group, (solid, panels, _))) in groups.iter().zip(&merged).enumerate() {
         let (lo, hi) = point_bounds(group.iter().flat_map(|&i| [placed[i].lo, placed[i].hi]));
         let info = BatchInfo {
             name: format!("batch-{b}"),
@@ -420,6 +425,7 @@ pub async fn bake(
         batches: batches.len(),
         triangles_before: level.instances.iter().map(|(m, _)| occluders[m].source_triangles).sum(),
         triangles_after: batches.iter().map(|b| b.triangles).sum(),
+        hidden_triangles_removed,
         draw_calls_before: level
             .instances
             .iter()

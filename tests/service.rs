@@ -457,3 +457,152 @@ fn submit_and_fetch_from_the_cli_with_exit_codes_ci_can_trust() {
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&work);
 }
+
+/// One part of a multipart/form-data body: field name, file name, bytes.
+type FormPart<'a> = (&'a str, &'a str, &'a [u8]);
+
+/// A multipart/form-data body and its Content-Type.
+fn multipart(parts: &[FormPart]) -> (String, Vec<u8>) {
+    let boundary = "occluder-cook-test-boundary";
+    let mut body = Vec::new();
+    for (name, file, bytes) in parts {
+        body.extend_from_slice(
+            format!(
+                "--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"; filename=\"{file}\"\r\n\
+                 Content-Type: application/octet-stream\r\n\r\n"
+            )
+            .as_bytes(),
+        );
+        body.extend_from_slice(bytes);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+fn level_manifest(placements: &[(&str, f64)]) -> Vec<u8> {
+    let instances: Vec<String> = placements
+        .iter()
+        .map(|(mesh, x)| format!("{{\"mesh\":\"{mesh}\",\"transform\":[1,0,0,0, 0,1,0,0, 0,0,1,0, {x},0,0,1]}}"))
+        .collect();
+    format!("{{\"name\":\"api\",\"instances\":[{}]}}", instances.join(",")).into_bytes()
+}
+
+#[test]
+fn a_level_is_baked_over_the_api_from_uploads_and_keys() {
+    let dir = data_dir("levels");
+    let server = Server::start(&dir, &[]);
+    let base = &server.base;
+    let levels = format!("{base}/v1/levels");
+    // One mesh cooked before, named in the manifest by its key; another uploaded with it.
+    let earlier = post(&format!("{base}/v1/cook?format=obj"), None, &small_mesh(7)).json();
+    let known = earlier["key"].as_str().unwrap().to_string();
+    let boxed = small_mesh(8);
+    let manifest = level_manifest(&[("box.obj", 0.0), ("box.obj", 3.0), ("box.obj", 6.0), (&known, 9.0)]);
+    let (content_type, body) = multipart(&[("manifest", "level.json", &manifest), ("mesh", "box.obj", &boxed)]);
+    let queued = post(&levels, Some(&content_type), &body);
+    assert_eq!(queued.status, 202, "{}", String::from_utf8_lossy(&queued.body));
+    let key = queued.json()["key"].as_str().unwrap().to_string();
+    let job = wait_for(base, queued.json()["job"].as_str().unwrap(), Duration::from_secs(120));
+    assert_eq!(
+        (job["state"].as_str(), job["kind"].as_str()),
+        (Some("done"), Some("level")),
+        "{job}"
+    );
+    let glb = get(&format!("{base}/v1/occluders/{key}"), &[]);
+    assert_eq!(glb.status, 200);
+    assert_eq!(&glb.body[..4], b"glTF");
+    let report = get(&format!("{base}/v1/occluders/{key}/report"), &[]).json();
+    assert_eq!(report["instances"], 4);
+    assert_eq!(report["unique_meshes"], 2);
+    let placed: usize = report["batches"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["instances"].as_array().unwrap().len())
+        .sum();
+    assert_eq!(placed, 4);
+    // The same level again is the same key, already baked.
+    let again = post(&levels, Some(&content_type), &body);
+    assert_eq!((again.status, again.json()["key"].as_str()), (200, Some(key.as_str())));
+
+    // Bad levels: JSON errors naming the problem, and the server keeps serving.
+    let cube = obj_text(&cuboid(Vec3::ZERO, Vec3::ONE, &[]));
+    let one = level_manifest(&[("c.obj", 0.0)]);
+    let gone = level_manifest(&[("gone.obj", 0.0)]);
+    let singular = br#"{"instances":[{"mesh":"c.obj","transform":[1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]}]}"#;
+    // (parts, query, status, code, what the message says)
+    let cases: Vec<(Vec<FormPart>, &str, u16, &str, &str)> = vec![
+        (
+            vec![("mesh", "c.obj", &cube)],
+            "",
+            400,
+            "bad_multipart",
+            "no `manifest` part",
+        ),
+        (
+            vec![
+                ("manifest", "m.json", &one),
+                ("mesh", "c.obj", &cube),
+                ("mesh", "d.obj", &cube),
+            ],
+            "",
+            400,
+            "bad_multipart",
+            "part `d.obj` is not used",
+        ),
+        (
+            vec![("manifest", "m.json", &gone)],
+            "",
+            422,
+            "bad_level",
+            "`gone.obj` not found",
+        ),
+        (
+            vec![("manifest", "m.json", b"{\"instances\":")],
+            "",
+            422,
+            "bad_level",
+            "EOF",
+        ),
+        (
+            vec![("manifest", "m.json", &singular[..]), ("mesh", "c.obj", &cube)],
+            "",
+            422,
+            "bad_level",
+            "singular",
+        ),
+        (
+            vec![("manifest", "m.json", &one), ("mesh", "c.obj", b"v 0 0 nan\nf 1 1 1\n")],
+            "",
+            422,
+            "bad_level",
+            "part `c.obj`",
+        ),
+        (
+            vec![("manifest", "m.json", &one), ("mesh", "c.obj", &cube)],
+            "?service.workers=9",
+            400,
+            "bad_settings",
+            "service.workers",
+        ),
+        (
+            vec![("manifest", "m.json", &one), ("mesh", "c.obj", &cube)],
+            "?level.bogus=1",
+            400,
+            "bad_settings",
+            "level.bogus",
+        ),
+    ];
+    for (parts, query, status, code, says) in cases {
+        let (content_type, body) = multipart(&parts);
+        let answer = post(&format!("{levels}{query}"), Some(&content_type), &body);
+        answer.assert_error(status, code);
+        let message = answer.json()["error"]["message"].as_str().unwrap().to_string();
+        assert!(message.contains(says), "expected {says:?} in {message}");
+    }
+    post(&levels, Some("application/json"), &manifest).assert_error(400, "bad_multipart");
+    assert_eq!(get(&format!("{base}/healthz"), &[]).status, 200);
+    drop(server);
+    let _ = std::fs::remove_dir_all(&dir);
+}

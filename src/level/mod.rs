@@ -21,17 +21,17 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Manifest {
     #[serde(default)]
     pub name: String,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "String::is_empty")]
     pub source: String,
     pub instances: Vec<InstanceSpec>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct InstanceSpec {
     /// A path relative to the manifest, or the key of a mesh cooked before.
@@ -48,7 +48,9 @@ pub enum LevelError {
     Malformed { path: String, message: String },
     #[error("the level has no instances")]
     Empty,
-    #[error("instance {index}: mesh `{mesh}` not found (neither a file next to the manifest nor a cached key)")]
+    #[error(
+        "instance {index}: mesh `{mesh}` not found (not a file next to the manifest, an uploaded part or a cached key)"
+    )]
     MissingMesh { index: usize, mesh: String },
     #[error("instance {index}: bad transform: {why}")]
     BadTransform { index: usize, why: String },
@@ -140,56 +142,70 @@ fn check_transform(matrix: &DMat4) -> Result<(), &'static str> {
     Ok(())
 }
 
-fn is_key(s: &str) -> bool {
+pub fn is_key(s: &str) -> bool {
     s.len() == 64 && s.bytes().all(|b| b.is_ascii_hexdigit())
 }
 
 /// Reads and checks a manifest: every mesh exists, every transform is finite and invertible.
+/// A mesh is a file next to the manifest or, failing that, the key of a mesh cooked before.
 pub fn load_manifest(path: &Path) -> Result<Level, LevelError> {
     let name = path.display().to_string();
     let text = std::fs::read(path).map_err(|e| LevelError::Read {
         path: name.clone(),
         message: e.to_string(),
     })?;
-    let manifest: Manifest = serde_json::from_slice(&text).map_err(|e| LevelError::Malformed {
-        path: name.clone(),
-        message: e.to_string(),
-    })?;
-    if manifest.instances.is_empty() {
-        return Err(LevelError::Empty);
-    }
+    let manifest = parse_manifest(&name, &text)?;
     let base = path.parent().unwrap_or(Path::new("."));
-    let mut instances = Vec::with_capacity(manifest.instances.len());
-    for (index, spec) in manifest.instances.iter().enumerate() {
-        let file = base.join(&spec.mesh);
-        let mesh = if file.is_file() {
-            MeshRef::File(file)
-        } else if is_key(&spec.mesh) {
-            MeshRef::Key(spec.mesh.to_ascii_lowercase())
+    Level::from_manifest(manifest, |mesh| {
+        let file = base.join(mesh);
+        if file.is_file() {
+            Some(MeshRef::File(file))
         } else {
-            return Err(LevelError::MissingMesh {
+            is_key(mesh).then(|| MeshRef::Key(mesh.to_ascii_lowercase()))
+        }
+    })
+}
+
+/// A manifest from JSON; `name` says where it came from, for errors.
+pub fn parse_manifest(name: &str, json: &[u8]) -> Result<Manifest, LevelError> {
+    serde_json::from_slice(json).map_err(|e| LevelError::Malformed {
+        path: name.to_string(),
+        message: e.to_string(),
+    })
+}
+
+impl Level {
+    /// Checks every instance of `manifest`: `resolve` finds its mesh (or not), and its transform
+    /// must be 16 finite numbers of an invertible matrix.
+    pub fn from_manifest(manifest: Manifest, resolve: impl Fn(&str) -> Option<MeshRef>) -> Result<Level, LevelError> {
+        if manifest.instances.is_empty() {
+            return Err(LevelError::Empty);
+        }
+        let mut instances = Vec::with_capacity(manifest.instances.len());
+        for (index, spec) in manifest.instances.iter().enumerate() {
+            let mesh = resolve(&spec.mesh).ok_or_else(|| LevelError::MissingMesh {
                 index,
                 mesh: spec.mesh.clone(),
-            });
-        };
-        let bad = |why: &str| LevelError::BadTransform {
-            index,
-            why: why.to_string(),
-        };
-        let columns: [f64; 16] = spec
-            .transform
-            .as_slice()
-            .try_into()
-            .map_err(|_| bad(&format!("expected 16 numbers, got {}", spec.transform.len())))?;
-        let matrix = DMat4::from_cols_array(&columns);
-        check_transform(&matrix).map_err(bad)?;
-        instances.push((mesh, matrix));
+            })?;
+            let bad = |why: &str| LevelError::BadTransform {
+                index,
+                why: why.to_string(),
+            };
+            let columns: [f64; 16] = spec
+                .transform
+                .as_slice()
+                .try_into()
+                .map_err(|_| bad(&format!("expected 16 numbers, got {}", spec.transform.len())))?;
+            let matrix = DMat4::from_cols_array(&columns);
+            check_transform(&matrix).map_err(bad)?;
+            instances.push((mesh, matrix));
+        }
+        Ok(Level {
+            name: manifest.name,
+            instances,
+            parts: Vec::new(),
+        })
     }
-    Ok(Level {
-        name: manifest.name,
-        instances,
-        parts: Vec::new(),
-    })
 }
 
 /// The occluder of one unique mesh: its watertight solid and its double-sided panels.
@@ -237,6 +253,8 @@ pub struct LevelReport {
 
 pub struct Baked {
     pub glb: Vec<u8>,
+    /// Meshes cooked and filed in the store by this bake: (key, bytes).
+    pub stored: Vec<(String, u64)>,
     pub batches: Vec<BatchInfo>,
     pub report: LevelReport,
 }
@@ -284,13 +302,8 @@ pub async fn bake(
                 let bytes = std::fs::read(path).map_err(|e| bad(e.to_string()))?;
                 let (mesh, stats) = load_bytes(&bytes, format, path.parent()).map_err(|e| bad(e.to_string()))?;
                 let key = cache_key(&mesh, &settings.cook);
-                let format = match format {
-                    Format::Gltf => "gltf",
-                    Format::Obj => "obj",
-                    Format::Stl => "stl",
-                };
                 let input = Input {
-                    format: format.into(),
+                    format: format.name().into(),
                     bytes,
                 };
                 Ok(((*m).clone(), key, Some((input, mesh, stats))))
@@ -313,10 +326,20 @@ pub async fn bake(
             }
             None => match source {
                 Some(source) => misses.push((m, key, source)),
-                None => {
-                    let index = level.instances.iter().position(|(r, _)| *r == m).unwrap_or(0);
-                    return Err(LevelError::MissingMesh { index, mesh: key });
-                }
+                // A key with no result yet: cooked from the upload kept under it.
+                None => match store.input(&key).await.map_err(cache)? {
+                    Some(input) => {
+                        let (mesh, stats) = input.load().map_err(|e| LevelError::BadMesh {
+                            mesh: key.clone(),
+                            message: e.to_string(),
+                        })?;
+                        misses.push((m, key, (input, mesh, stats)));
+                    }
+                    None => {
+                        let index = level.instances.iter().position(|(r, _)| *r == m).unwrap_or(0);
+                        return Err(LevelError::MissingMesh { index, mesh: key });
+                    }
+                },
             },
         }
     }
@@ -335,6 +358,7 @@ pub async fn bake(
             (m, key, input, cooked)
         })
         .collect();
+    let mut stored = Vec::with_capacity(cooked.len());
     for (m, key, input, cooked) in cooked {
         let glb = cooked.glb();
         let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
@@ -345,6 +369,7 @@ pub async fn bake(
             created_ms: crate::service::job::now_ms(),
         };
         store.put_result(&key, &glb, &report, &meta).await.map_err(cache)?;
+        stored.push((key.clone(), meta.bytes));
         occluders.insert(m, occluder_from_glb(&key, &glb, Some(&report))?);
     }
     timings.0.push(("cook".into(), cooking.elapsed().as_secs_f64() * 1e3));
@@ -434,7 +459,12 @@ pub async fn bake(
         draw_calls_after: batches.len(),
         timings_ms: timings,
     };
-    Ok(Baked { glb, batches, report })
+    Ok(Baked {
+        glb,
+        stored,
+        batches,
+        report,
+    })
 }
 
 /// A cached occluder's parts, with the source's size from its report.

@@ -29,19 +29,31 @@ pub enum Format {
 }
 
 impl Format {
+    /// `gltf`, `obj` or `stl`: how inputs are filed.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Gltf => "gltf",
+            Format::Obj => "obj",
+            Format::Stl => "stl",
+        }
+    }
+
+    /// The format of a name or extension: `glb`, `gltf`, `obj` or `stl`, in any case.
+    pub fn from_name(name: &str) -> Option<Format> {
+        match name.to_ascii_lowercase().as_str() {
+            "glb" | "gltf" => Some(Format::Gltf),
+            "obj" => Some(Format::Obj),
+            "stl" => Some(Format::Stl),
+            _ => None,
+        }
+    }
+
     /// The format named by a file extension (`glb`, `gltf`, `obj`, `stl`).
     pub fn from_extension(path: &Path) -> Result<Format, IngestError> {
-        let ext = path
-            .extension()
+        path.extension()
             .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase)
-            .unwrap_or_default();
-        match ext.as_str() {
-            "glb" | "gltf" => Ok(Format::Gltf),
-            "obj" => Ok(Format::Obj),
-            "stl" => Ok(Format::Stl),
-            _ => Err(IngestError::UnknownFormat(path.display().to_string())),
-        }
+            .and_then(Format::from_name)
+            .ok_or_else(|| IngestError::UnknownFormat(path.display().to_string()))
     }
 }
 

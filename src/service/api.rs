@@ -8,7 +8,8 @@ use crate::key::cache_key;
 use crate::mesh::{Format, load_bytes};
 use axum::Json;
 use axum::body::Body;
-use axum::extract::{Path, Query, State};
+use axum::extract::multipart::{Multipart, MultipartError, MultipartRejection};
+use axum::extract::{DefaultBodyLimit, Path, Query, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
@@ -16,6 +17,7 @@ use axum::routing::{get, post};
 use futures_util::stream::{self, Stream};
 use metrics_exporter_prometheus::PrometheusHandle;
 use serde::Serialize;
+use std::collections::HashMap;
 use std::convert::Infallible;
 use std::sync::Arc;
 use std::time::Duration;
@@ -38,6 +40,7 @@ pub struct AppState {
     ),
     paths(
         submit_cook,
+        submit_level,
         job_status,
         job_events,
         occluder_glb,
@@ -45,13 +48,25 @@ pub struct AppState {
         healthz,
         metrics_text
     ),
-    components(schemas(Accepted, ErrorBody, ErrorDetail, Job, JobError, super::job::JobState))
+    components(schemas(
+        Accepted,
+        ErrorBody,
+        ErrorDetail,
+        Job,
+        JobError,
+        super::job::JobState,
+        super::job::JobKind
+    ))
 )]
 pub struct ApiDoc;
 
 pub fn router(state: AppState) -> axum::Router {
     axum::Router::new()
         .route("/v1/cook", post(submit_cook))
+        .route(
+            "/v1/levels",
+            post(submit_level).layer(DefaultBodyLimit::max(state.service.settings.service.max_body_bytes)),
+        )
         .route("/v1/jobs/{id}", get(job_status))
         .route("/v1/jobs/{id}/events", get(job_events))
         .route("/v1/occluders/{key}", get(occluder_glb))
@@ -143,7 +158,7 @@ fn accepted(key: &str, job: String) -> Accepted {
 }
 
 /// The mesh format from `?format=` or the Content-Type.
-fn format_of(query: Option<&str>, headers: &HeaderMap) -> Result<(Format, &'static str), ApiError> {
+fn format_of(query: Option<&str>, headers: &HeaderMap) -> Result<Format, ApiError> {
     let content_type = headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
@@ -164,20 +179,22 @@ fn format_of(query: Option<&str>, headers: &HeaderMap) -> Result<(Format, &'stat
             ));
         }
     };
-    match name.as_str() {
-        "glb" | "gltf" => Ok((Format::Gltf, "gltf")),
-        "obj" => Ok((Format::Obj, "obj")),
-        "stl" => Ok((Format::Stl, "stl")),
-        other => Err(ApiError::new(
+    Format::from_name(&name).ok_or_else(|| {
+        ApiError::new(
             StatusCode::BAD_REQUEST,
             "unknown_format",
-            format!("format `{other}` is not one of glb, gltf, obj, stl"),
-        )),
-    }
+            format!("format `{name}` is not one of glb, gltf, obj, stl"),
+        )
+    })
 }
 
-/// The server's settings with the query's `cook.*` overrides (a bare name means `cook.NAME`).
-fn job_settings(service: &Service, params: &[(String, String)]) -> Result<config::Settings, ApiError> {
+/// The server's settings with the query's overrides of the `sections` given (a bare name means
+/// `cook.NAME`).
+fn job_settings(
+    service: &Service,
+    params: &[(String, String)],
+    sections: &[&str],
+) -> Result<config::Settings, ApiError> {
     let bad = |e: ConfigError| ApiError::new(StatusCode::BAD_REQUEST, "bad_settings", e.to_string());
     let mut overrides = Vec::new();
     for (key, value) in params.iter().filter(|(k, _)| k != "format") {
@@ -186,11 +203,16 @@ fn job_settings(service: &Service, params: &[(String, String)]) -> Result<config
         } else {
             format!("cook.{key}")
         };
-        if !key.starts_with("cook.") {
+        let section = key.split('.').next().unwrap_or_default();
+        if !sections.contains(&section) {
+            let allowed: Vec<String> = sections.iter().map(|s| format!("{s}.*")).collect();
             return Err(ApiError::new(
                 StatusCode::BAD_REQUEST,
                 "bad_settings",
-                format!("setting `{key}` cannot be set per job: only cook.* settings can"),
+                format!(
+                    "setting `{key}` cannot be set per job: only {} settings can",
+                    allowed.join(" and ")
+                ),
             ));
         }
         overrides.push(config::parse_assignment(&format!("{key}={value}")).map_err(bad)?);
@@ -239,8 +261,8 @@ async fn submit_cook(
         return Err(too_large());
     }
     let format_param = params.iter().find(|(k, _)| k == "format").map(|(_, v)| v.as_str());
-    let (format, format_name) = format_of(format_param, &headers)?;
-    let settings = job_settings(service, &params)?;
+    let format = format_of(format_param, &headers)?;
+    let settings = job_settings(service, &params, &["cook"])?;
     let bytes = axum::body::to_bytes(body, limit).await.map_err(|_| too_large())?;
     if bytes.is_empty() {
         return Err(ApiError::new(
@@ -251,7 +273,7 @@ async fn submit_cook(
     }
     let settings_json = serde_json::to_value(&settings.cook).expect("settings serialize");
     let mut upload = blake3::Hasher::new();
-    upload.update(format_name.as_bytes());
+    upload.update(format.name().as_bytes());
     upload.update(settings_json.to_string().as_bytes());
     upload.update(&bytes);
     let upload = upload.finalize();
@@ -278,13 +300,178 @@ async fn submit_cook(
         }
     };
     let input = Input {
-        format: format_name.into(),
+        format: format.name().into(),
         bytes: bytes.to_vec(),
     };
-    match service.submit(&key, input, settings_json).await {
-        Ok(Submitted::Cached(job)) => Ok((StatusCode::OK, Json(accepted(&key, job))).into_response()),
+    submitted(&key, service.submit(&key, input, settings_json).await)
+}
+
+fn bad_level(message: impl Into<String>) -> ApiError {
+    ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "bad_level", message)
+}
+
+fn multipart_error(e: MultipartError) -> ApiError {
+    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::new(StatusCode::PAYLOAD_TOO_LARGE, "too_large", e.body_text())
+    } else {
+        ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", e.body_text())
+    }
+}
+
+#[utoipa::path(
+    post, path = "/v1/levels",
+    params(
+        ("cook.*" = Option<String>, Query, description = "cook settings for the level's meshes"),
+        ("level.*" = Option<String>, Query, description = "level settings (batch limits)"),
+    ),
+    request_body(
+        content = Vec<u8>, content_type = "multipart/form-data",
+        description = "A part `manifest` (the level's JSON manifest) and one part per uploaded mesh, \
+            named as the manifest names it (or a part `mesh` whose file name is that name). \
+            A manifest entry that names no part is the key of a mesh uploaded before."
+    ),
+    responses(
+        (status = 200, description = "Already baked: the level's GLB is at result_url", body = Accepted),
+        (status = 202, description = "Queued; the job's progress is at status_url", body = Accepted),
+        (status = 400, description = "Not multipart, a part named twice or unused, or bad settings", body = ErrorBody),
+        (status = 413, description = "Body over service.max_body_bytes", body = ErrorBody),
+        (status = 422, description = "Bad manifest, mesh or transform, or a mesh neither uploaded nor known", body = ErrorBody),
+        (status = 429, description = "The queue is full; see Retry-After", body = ErrorBody),
+    )
+)]
+async fn submit_level(
+    State(state): State<AppState>,
+    Query(params): Query<Vec<(String, String)>>,
+    multipart: Result<Multipart, MultipartRejection>,
+) -> Result<Response, ApiError> {
+    use crate::level::{InstanceSpec, Level, Manifest, MeshRef, is_key, parse_manifest};
+    use rayon::prelude::*;
+    let service = &state.service;
+    let settings = job_settings(service, &params, &["cook", "level"])?;
+    let mut multipart =
+        multipart.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", e.body_text()))?;
+    let mut manifest = None;
+    let mut parts: HashMap<String, axum::body::Bytes> = HashMap::new();
+    while let Some(field) = multipart.next_field().await.map_err(multipart_error)? {
+        let name = match field.name().unwrap_or_default() {
+            "mesh" => field.file_name().unwrap_or_default().to_string(),
+            other => other.to_string(),
+        };
+        let bytes = field.bytes().await.map_err(multipart_error)?;
+        if name == "manifest" {
+            manifest = Some(bytes);
+        } else if name.is_empty() {
+            return Err(ApiError::new(
+                StatusCode::BAD_REQUEST,
+                "bad_multipart",
+                "a part has no name",
+            ));
+        } else if parts.insert(name.clone(), bytes).is_some() {
+            return Err(ApiError::new(
+                StatusCode::BAD_REQUEST,
+                "bad_multipart",
+                format!("part `{name}` is sent twice"),
+            ));
+        }
+    }
+    let manifest =
+        manifest.ok_or_else(|| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", "no `manifest` part"))?;
+    let manifest = parse_manifest("manifest", &manifest).map_err(|e| bad_level(e.to_string()))?;
+    if let Some(unused) = parts
+        .keys()
+        .find(|name| manifest.instances.iter().all(|i| &i.mesh != *name))
+    {
+        return Err(ApiError::new(
+            StatusCode::BAD_REQUEST,
+            "bad_multipart",
+            format!("part `{unused}` is not used by any instance"),
+        ));
+    }
+    // Uploaded meshes are read and keyed in parallel, off the async threads.
+    let cook = settings.cook.clone();
+    let uploads = tokio::task::spawn_blocking(move || {
+        parts
+            .into_par_iter()
+            .map(|(name, bytes)| {
+                let bad = |why: String| bad_level(format!("part `{name}`: {why}"));
+                let format = Format::from_extension(std::path::Path::new(&name)).map_err(|e| bad(e.to_string()))?;
+                let (mesh, _) = load_bytes(&bytes, format, None).map_err(|e| bad(e.to_string()))?;
+                let input = Input {
+                    format: format.name().into(),
+                    bytes: bytes.to_vec(),
+                };
+                Ok((name, cache_key(&mesh, &cook), input))
+            })
+            .collect::<Result<Vec<_>, ApiError>>()
+    })
+    .await
+    .map_err(|e| bad_level(format!("reading a mesh crashed: {e}")))??;
+    let mut key_of: HashMap<String, String> = HashMap::new();
+    for (name, key, input) in uploads {
+        if service.result_meta(&key).await.map_err(ApiError::storage)?.is_none() {
+            service.store.put_input(&key, &input).await.map_err(ApiError::storage)?;
+        }
+        key_of.insert(name, key);
+    }
+    for spec in &manifest.instances {
+        let mesh = spec.mesh.to_ascii_lowercase();
+        if key_of.contains_key(&spec.mesh) || !is_key(&mesh) || key_of.contains_key(&mesh) {
+            continue;
+        }
+        let known = service.result_meta(&mesh).await.map_err(ApiError::storage)?.is_some()
+            || service.store.input(&mesh).await.map_err(ApiError::storage)?.is_some();
+        if known {
+            key_of.insert(mesh.clone(), mesh);
+        }
+    }
+    // Every mesh as its key: the level's input, and what its key is made of.
+    let resolved = Manifest {
+        name: manifest.name,
+        source: manifest.source,
+        instances: manifest
+            .instances
+            .into_iter()
+            .map(|i| InstanceSpec {
+                mesh: key_of
+                    .get(&i.mesh)
+                    .or_else(|| key_of.get(&i.mesh.to_ascii_lowercase()))
+                    .cloned()
+                    .unwrap_or(i.mesh),
+                transform: i.transform,
+            })
+            .collect(),
+    };
+    let bytes = serde_json::to_vec(&resolved).expect("manifests serialize");
+    Level::from_manifest(resolved, |mesh| {
+        key_of
+            .values()
+            .any(|k| k == mesh)
+            .then(|| MeshRef::Key(mesh.to_string()))
+    })
+    .map_err(|e| bad_level(e.to_string()))?;
+    let settings_json = serde_json::to_value(super::LevelJobSettings {
+        cook: settings.cook,
+        level: settings.level,
+    })
+    .expect("settings serialize");
+    let mut hasher = blake3::Hasher::new();
+    hasher.update(b"level\n");
+    hasher.update(settings_json.to_string().as_bytes());
+    hasher.update(&bytes);
+    let key = hasher.finalize().to_hex().to_string();
+    let input = Input {
+        format: super::LEVEL_FORMAT.into(),
+        bytes,
+    };
+    submitted(&key, service.submit(&key, input, settings_json).await)
+}
+
+/// 200 with the job that made a cached result, 202 with `Location` for a queued one.
+fn submitted(key: &str, outcome: Result<Submitted, SubmitError>) -> Result<Response, ApiError> {
+    match outcome {
+        Ok(Submitted::Cached(job)) => Ok((StatusCode::OK, Json(accepted(key, job))).into_response()),
         Ok(Submitted::Queued(job)) => {
-            let body = accepted(&key, job);
+            let body = accepted(key, job);
             let location = HeaderValue::from_str(&body.status_url).expect("ids are ASCII");
             Ok((StatusCode::ACCEPTED, [(header::LOCATION, location)], Json(body)).into_response())
         }

@@ -27,6 +27,15 @@ impl JobState {
     }
 }
 
+/// What a job makes: one mesh's occluder, or a whole level's batches.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum JobKind {
+    #[default]
+    Mesh,
+    Level,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct JobError {
     pub code: String,
@@ -36,6 +45,8 @@ pub struct JobError {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct Job {
     pub id: String,
+    #[serde(default)]
+    pub kind: JobKind,
     /// The content key of the mesh and settings; the result is filed under it.
     pub key: String,
     pub state: JobState,
@@ -44,7 +55,7 @@ pub struct Job {
     /// 0 to 1.
     pub progress: f64,
     pub error: Option<JobError>,
-    /// The effective cook settings, as JSON.
+    /// The effective settings, as JSON: `cook.*` for a mesh, `{"cook": …, "level": …}` for a level.
     #[schema(value_type = Object)]
     pub settings: serde_json::Value,
     pub created_ms: u64,

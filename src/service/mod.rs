@@ -13,8 +13,7 @@ pub mod store;
 
 use crate::config::Settings;
 use crate::cook::cook_with_progress;
-use crate::mesh::{Format, load_bytes};
-use job::{Job, JobError, JobState, now_ms};
+use job::{Job, JobError, JobKind, JobState, now_ms};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -37,6 +36,16 @@ pub struct Service {
     /// Keys of uploads seen before, by the BLAKE3 of their bytes, format and settings: a repeat
     /// upload skips parsing.
     seen: Mutex<HashMap<blake3::Hash, String>>,
+}
+
+/// The input format of a level job: its manifest, every mesh given by key.
+pub const LEVEL_FORMAT: &str = "level";
+
+/// A level job's settings.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct LevelJobSettings {
+    pub cook: crate::config::CookSettings,
+    pub level: crate::config::LevelSettings,
 }
 
 /// Most remembered uploads; the memo starts over beyond it.
@@ -151,8 +160,14 @@ impl Service {
             return Err(SubmitError::QueueFull(waiting));
         }
         let now = now_ms();
+        let kind = if input.format == LEVEL_FORMAT {
+            JobKind::Level
+        } else {
+            JobKind::Mesh
+        };
         let job = Job {
             id: job::new_id(),
+            kind,
             key: key.to_string(),
             state: JobState::Queued,
             stage: None,
@@ -348,6 +363,9 @@ impl Service {
             Ok(None) => return Err(fail("input_missing", "the uploaded mesh is gone".into())),
             Err(e) => return Err(fail("storage", e.to_string())),
         };
+        if job.kind == JobKind::Level {
+            return self.bake_level(job, input).await;
+        }
         let mut settings = self.settings.clone();
         match serde_json::from_value(job.settings.clone()) {
             Ok(cook) => settings.cook = cook,
@@ -356,20 +374,10 @@ impl Service {
         let service = Arc::clone(self);
         let running = job.clone();
         let work = tokio::task::spawn_blocking(move || {
-            let format = match input.format.as_str() {
-                "gltf" => Format::Gltf,
-                "obj" => Format::Obj,
-                _ => Format::Stl,
-            };
             let start = std::time::Instant::now();
-            let (mesh, stats) = load_bytes(&input.bytes, format, None).map_err(|e| fail("bad_mesh", e.to_string()))?;
+            let (mesh, stats) = input.load().map_err(|e| fail("bad_mesh", e.to_string()))?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
-            let progress = |stage: &str, done: f64| {
-                let mut job = running.clone();
-                job.stage = Some(stage.to_string());
-                job.progress = done;
-                service.set_live(&job);
-            };
+            let progress = |stage: &str, done: f64| service.set_progress(&running, stage, done);
             let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress);
             for (stage, ms) in &cooked.report.timings_ms.0 {
                 metrics::histogram!("occluder_cook_stage_seconds", "stage" => stage.clone()).record(ms / 1e3);
@@ -382,6 +390,58 @@ impl Service {
             Ok(result) => result,
             Err(e) => Err(fail("panic", format!("the cook crashed: {e}"))),
         }
+    }
+
+    fn set_progress(&self, running: &Job, stage: &str, done: f64) {
+        let mut job = running.clone();
+        job.stage = Some(stage.to_string());
+        job.progress = done;
+        self.set_live(&job);
+    }
+
+    /// Bakes a level whose meshes are all keys: each is found in the store, or cooked from its
+    /// kept upload (and filed under its key for the next level). The report holds the batches.
+    async fn bake_level(self: &Arc<Self>, job: &Job, input: store::Input) -> Result<(Vec<u8>, Vec<u8>), JobError> {
+        let fail = |code: &str, message: String| JobError {
+            code: code.into(),
+            message,
+        };
+        let mut settings = self.settings.clone();
+        match serde_json::from_value::<LevelJobSettings>(job.settings.clone()) {
+            Ok(level) => (settings.cook, settings.level) = (level.cook, level.level),
+            Err(e) => return Err(fail("bad_settings", e.to_string())),
+        }
+        let level = crate::level::parse_manifest("the level", &input.bytes)
+            .and_then(|m| crate::level::Level::from_manifest(m, |mesh| Some(crate::level::MeshRef::Key(mesh.into()))))
+            .map_err(|e| fail("bad_level", e.to_string()))?;
+        let service = Arc::clone(self);
+        let running = job.clone();
+        let runtime = tokio::runtime::Handle::current();
+        // The bake is CPU-bound (rayon) between its store calls: it runs on a blocking thread.
+        let work = tokio::task::spawn_blocking(move || {
+            let progress = |done: usize, total: usize| {
+                service.set_progress(&running, "meshes", 0.95 * done as f64 / total.max(1) as f64)
+            };
+            runtime.block_on(crate::level::bake(&level, &settings, service.store.as_ref(), &progress))
+        });
+        let baked = match work.await {
+            Ok(Ok(baked)) => baked,
+            Ok(Err(e @ crate::level::LevelError::Cache(_))) => return Err(fail("storage", e.to_string())),
+            Ok(Err(e)) => return Err(fail("bad_level", e.to_string())),
+            Err(e) => return Err(fail("panic", format!("the bake crashed: {e}"))),
+        };
+        {
+            let mut cache = self.cache.lock().unwrap();
+            for (key, bytes) in &baked.stored {
+                cache.touch(key, *bytes);
+            }
+        }
+        let mut report = serde_json::to_value(&baked.report).expect("reports serialize");
+        report["batches"] = serde_json::to_value(&baked.batches).expect("batches serialize");
+        Ok((
+            baked.glb,
+            serde_json::to_vec_pretty(&report).expect("reports serialize"),
+        ))
     }
 
     /// Drops least recently used results (and their inputs) beyond `service.max_cache_bytes`.

@@ -214,17 +214,9 @@ fn box_scene() -> String {
     let corners: Vec<f32> = (0..8)
         .flat_map(|i| [(i & 1) as f32 * 2.0, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32])
         .collect();
-    let faces: [[u16; 4]; 6] = [
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-    ];
-    let indices: Vec<u16> = faces
+    let indices: Vec<u16> = occluder_cook::occluder::BOX_FACES
         .iter()
-        .flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]])
+        .flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]].map(|i| i as u16))
         .collect();
     let mut buffer: Vec<u8> = corners.iter().flat_map(|v| v.to_le_bytes()).collect();
     buffer.extend(indices.iter().flat_map(|i| i.to_le_bytes()));

@@ -64,10 +64,13 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
             let start = Instant::now();
-            match load_file(path) {
-                Ok((mesh, stats)) => {
-                    let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
-                    let report = cook(mesh, stats, ingest_ms, settings, true).report;
+            let cooked = load_file(path).map_err(|e| e.to_string()).and_then(|(mesh, stats)| {
+                let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
+                cook(mesh, stats, ingest_ms, settings, true).map_err(|e| e.to_string())
+            });
+            match cooked {
+                Ok(cooked) => {
+                    let report = cooked.report;
                     print_row(&name, &report);
                     BenchRow {
                         mesh: name,
@@ -80,7 +83,7 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
                     BenchRow {
                         mesh: name,
                         report: None,
-                        error: Some(e.to_string()),
+                        error: Some(e),
                     }
                 }
             }

@@ -3,6 +3,7 @@
 //! a typo or a bad value is an error that names the key.
 
 use crate::eval::EvalSettings;
+use crate::gpu::DeviceChoice;
 use crate::occluder::Shape;
 use crate::voxel::InsideMethod;
 use serde::{Deserialize, Serialize};
@@ -57,6 +58,7 @@ impl ServiceSettings {
 pub struct CookSettings {
     pub resolution: usize,
     pub inside: InsideMethod,
+    pub device: DeviceChoice,
     pub target_coverage: f64,
     pub min_box_gain: f64,
     pub max_boxes: usize,

@@ -3,10 +3,11 @@
 
 use crate::config::Settings;
 use crate::eval::{Quality, evaluate};
+use crate::gpu::{self, GpuError};
 use crate::key::{PIPELINE_VERSION, cache_key};
 use crate::mesh::{IngestStats, Mesh, Topology, glb, topology::orient_closed_components};
 use crate::occluder::{Occluder, Panel, Shape, WorldBox, boxes, exposure::OpenViews, patches, quads, refine, select};
-use crate::voxel::{self, Grid, InsideMethod, surface, winding::WindingField};
+use crate::voxel::{self, Grid, InsideMethod, winding::WindingField};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -92,8 +93,10 @@ pub struct Report {
     pub boxes: BoxReport,
     pub panels: PanelReport,
     pub occluder: OccluderReport,
-    /// The device that ran the pipeline.
+    /// The device that ran the voxel stages: "cpu", or the GPU adapter's name.
     pub device: String,
+    /// The stages that ran on that GPU.
+    pub gpu_stages: Vec<&'static str>,
     pub timings_ms: Timings,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub quality: Option<Quality>,
@@ -188,8 +191,15 @@ impl Cooked {
     }
 }
 
-/// Cooks an ingested mesh. `ingest_ms` is the time the caller spent reading it.
-pub fn cook(mesh: Mesh, ingest: IngestStats, ingest_ms: f64, settings: &Settings, with_eval: bool) -> Cooked {
+/// Cooks an ingested mesh. `ingest_ms` is the time the caller spent reading it. Fails only when
+/// the GPU it was told to use is missing or fails.
+pub fn cook(
+    mesh: Mesh,
+    ingest: IngestStats,
+    ingest_ms: f64,
+    settings: &Settings,
+    with_eval: bool,
+) -> Result<Cooked, GpuError> {
     cook_with_progress(mesh, ingest, ingest_ms, settings, with_eval, &|_, _| {})
 }
 
@@ -201,8 +211,13 @@ pub fn cook_with_progress(
     settings: &Settings,
     with_eval: bool,
     progress: Progress,
-) -> Cooked {
+) -> Result<Cooked, GpuError> {
     let cook = &settings.cook;
+    let gpu = gpu::for_choice(cook.device)?;
+    let mut notes = Vec::new();
+    if gpu.is_none() && cook.device == gpu::DeviceChoice::Auto {
+        notes.push("device=auto found no GPU adapter, so the voxel stages ran on the CPU".to_string());
+    }
     let mut timings = Clock {
         timings: Timings(vec![("ingest".into(), ingest_ms)]),
         progress,
@@ -211,11 +226,11 @@ pub fn cook_with_progress(
     let topology = timings.time("orient", || orient_closed_components(&mut mesh));
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, cook.resolution);
-    let surface = timings.time("surface", || surface::voxelize(&mesh, &grid));
-    let solid = timings.time("inside", || voxel::classify(cook.inside, &mesh, &topology, &grid));
-    let mut inner: Vec<bool> = timings.time("inner", || {
-        solid.iter().zip(&surface.voxels).map(|(&s, &t)| s && !t).collect()
-    });
+    let surface = timings.time("surface", || voxel::surface(&mesh, &grid, gpu.as_deref()))?;
+    let solid = timings.time("inside", || {
+        voxel::classify(cook.inside, &mesh, &topology, &grid, gpu.as_deref())
+    })?;
+    let mut inner: Vec<bool> = timings.time("inner", || solid.iter().zip(&surface).map(|(&s, &t)| s && !t).collect());
     // Only open meshes can show their inside.
     let open_views = (!topology.boundary.is_empty()).then(|| timings.time("exposure-render", || OpenViews::new(&mesh)));
     let exposed_voxels = match &open_views {
@@ -235,6 +250,7 @@ pub fn cook_with_progress(
     } else {
         Vec::new()
     };
+    let field = WindingField::new(&mesh, &topology.boundary);
     let candidates: Vec<(WorldBox, WorldBox)> = timings.time("refine", || {
         let mut owner = vec![u32::MAX; grid.len()];
         for (id, b) in voxel_boxes.iter().enumerate() {
@@ -247,7 +263,7 @@ pub fn cook_with_progress(
         let input = refine::RefineInput {
             mesh: &mesh,
             grid: &grid,
-            surface: &surface,
+            field: &field,
             solid: &solid,
             owner: &owner,
         };
@@ -279,7 +295,6 @@ pub fn cook_with_progress(
     let exposed_boxes = voxel_boxes.len() - candidates.len();
     let (quads, quads_found) = if use_shape(Shape::Quads) {
         let quads = timings.time("quads", || {
-            let field = WindingField::new(&mesh, &topology.boundary);
             // A closed surface's crossings decide exactly. An open one's winding number varies
             // away from the surface, so its inner voxels decide: those that no camera sees
             // through an opening. The exposure test then checks each quad.
@@ -340,7 +355,6 @@ pub fn cook_with_progress(
         panels: selection.panels.iter().map(|&i| panels[i]).collect(),
     };
     let kept = selection.boxes;
-    let mut notes = Vec::new();
     if exposed_voxels + exposed_boxes + exposed_quads > 0 {
         notes.push(format!(
             "left out {exposed_voxels} voxels, {exposed_boxes} boxes and {exposed_quads} quads that show through an opening from above the horizon"
@@ -370,7 +384,7 @@ pub fn cook_with_progress(
             topology,
         },
         voxels: VoxelReport {
-            surface: surface.voxels.iter().filter(|&&v| v).count(),
+            surface: surface.iter().filter(|&&v| v).count(),
             solid: solid.iter().filter(|&&v| v).count(),
             inner: inner_count,
             exposed: exposed_voxels,
@@ -401,10 +415,15 @@ pub fn cook_with_progress(
             patches: occluder.panels.iter().filter(|p| p.shape == Shape::Patches).count(),
             silhouette_gains: selection.gains,
         },
-        device: "cpu".into(),
+        device: gpu.as_ref().map_or("cpu".into(), |g| g.name()),
+        gpu_stages: if gpu.is_some() {
+            vec!["surface", "inside"]
+        } else {
+            Vec::new()
+        },
         timings_ms: timings.timings,
         quality,
         notes,
     };
-    Cooked { occluder, report }
+    Ok(Cooked { occluder, report })
 }

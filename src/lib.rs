@@ -2,13 +2,14 @@
 //!
 //! The pipeline, one module per stage: [`mesh`] (ingest, weld, export), [`voxel`] (surface and
 //! inside/outside), [`occluder`] (boxes, refinement, selection, merge), [`eval`] (quality
-//! figures), tied together by [`cook`]; [`service`] runs it behind an HTTP job queue with a
+//! figures), tied together by [`cook`]; [`gpu`] runs the voxel stages' shaders through wgpu; [`service`] runs it behind an HTTP job queue with a
 //! content-addressed cache.
 
 pub mod bench;
 pub mod config;
 pub mod cook;
 pub mod eval;
+pub mod gpu;
 pub mod key;
 pub mod level;
 pub mod mesh;

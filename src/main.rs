@@ -1,6 +1,7 @@
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use occluder_cook::config::{self, Settings};
+use occluder_cook::gpu::DeviceChoice;
 use occluder_cook::mesh::{self, topology::orient_closed_components};
 use occluder_cook::service::{self, client};
 use occluder_cook::voxel::InsideMethod;
@@ -149,6 +150,9 @@ struct SettingsArgs {
     /// cook.inside: the inside/outside method.
     #[arg(long, value_enum)]
     inside: Option<InsideMethod>,
+    /// cook.device: where the voxel stages run.
+    #[arg(long, value_enum)]
+    device: Option<DeviceChoice>,
     /// cook.max_triangles: the occluder's triangle budget.
     #[arg(long)]
     max_triangles: Option<usize>,
@@ -182,11 +186,9 @@ impl SettingsArgs {
         };
         let int = |v: Option<usize>| v.map(|v| toml::Value::Integer(v as i64));
         flag("cook.resolution", int(self.resolution));
-        flag(
-            "cook.inside",
-            self.inside
-                .map(|m| toml::Value::String(format!("{m:?}").to_lowercase())),
-        );
+        let name = |v: &dyn std::fmt::Debug| toml::Value::String(format!("{v:?}").to_lowercase());
+        flag("cook.inside", self.inside.as_ref().map(|m| name(m)));
+        flag("cook.device", self.device.as_ref().map(|d| name(d)));
         flag("cook.max_triangles", int(self.max_triangles));
         flag("cook.target_coverage", self.target_coverage.map(toml::Value::Float));
         match self.views.as_deref().map(|v| (v, v.parse::<usize>())) {
@@ -228,7 +230,7 @@ fn run(cli: Cli) -> Result<()> {
             let start = Instant::now();
             let (mesh, stats) = mesh::load_file(&input)?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
-            let cooked = cook::cook(mesh, stats, ingest_ms, &settings, eval);
+            let cooked = cook::cook(mesh, stats, ingest_ms, &settings, eval)?;
             write_occluder(&output, &cooked)?;
             if let Some(path) = report {
                 write(&path, &serde_json::to_vec_pretty(&cooked.report)?)?;
@@ -243,7 +245,7 @@ fn run(cli: Cli) -> Result<()> {
                 welded_vertices: mesh.positions.len(),
                 ..Default::default()
             };
-            let cooked = cook::cook(mesh, stats, 0.0, &config::load(None, &[])?, true);
+            let cooked = cook::cook(mesh, stats, 0.0, &config::load(None, &[])?, true)?;
             write_occluder(&output, &cooked)?;
             summarize(Path::new("built-in torus"), &cooked.report);
         }

@@ -77,7 +77,7 @@ fn wall_thinner_than_a_voxel_gives_no_box() {
     let mut settings = common::defaults();
     settings.cook.shapes = vec![Shape::Boxes];
     let mesh = cuboid(Vec3::new(-2.0, 0.0, -0.015), Vec3::new(2.0, 3.0, 0.015), &[]);
-    let cooked = cook(mesh, Default::default(), 0.0, &settings, false);
+    let cooked = cook(mesh, Default::default(), 0.0, &settings, false).expect("cooks");
     assert_eq!(cooked.occluder.triangles(), 0);
     assert_eq!(cooked.report.voxels.inner, 0);
     assert!(
@@ -102,6 +102,6 @@ fn budget_and_key_are_respected() {
     assert_eq!(cooked.report.key, again.report.key);
     let mut settings = common::defaults();
     settings.cook.resolution = 48;
-    let other = cook(mesh, Default::default(), 0.0, &settings, false);
+    let other = cook(mesh, Default::default(), 0.0, &settings, false).expect("cooks");
     assert_ne!(cooked.report.key, other.report.key);
 }

@@ -24,7 +24,7 @@ fn cook_corpus_mesh(name: &str) -> Option<Quality> {
 fn cook_file(path: &Path) -> (Quality, occluder_cook::cook::Cooked) {
     let name = path.file_name().unwrap().to_string_lossy().to_string();
     let (mesh, stats) = load_file(path).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let cooked = cook(mesh, stats, 0.0, &common::defaults(), true);
+    let cooked = cook(mesh, stats, 0.0, &common::defaults(), true).expect("cooks");
     let q = cooked.report.quality.clone().expect("evaluated");
     println!(
         "{name}: {} triangles, coverage {:.1}%, false pixels {} / {} non-below, outside {:.2}%",

@@ -58,6 +58,8 @@ pub enum LevelError {
     BadMesh { mesh: String, message: String },
     #[error("cache: {0}")]
     Cache(String),
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
 }
 
 /// A level with every instance checked: its mesh source and its matrix.
@@ -360,6 +362,7 @@ pub async fn bake(
         .collect();
     let mut stored = Vec::with_capacity(cooked.len());
     for (m, key, input, cooked) in cooked {
+        let cooked = cooked?;
         let glb = cooked.glb();
         let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
         store.put_input(&key, &input).await.map_err(cache)?;

@@ -5,7 +5,7 @@
 
 use super::{WorldBox, boxes::VoxelBox};
 use crate::mesh::Mesh;
-use crate::voxel::{Grid, surface::Surface, surface::triangle_box_overlap};
+use crate::voxel::{Grid, surface::triangle_box_overlap, winding::WindingField};
 use glam::DVec3;
 
 /// Binary-search steps: the face ends within voxel_size / 2^16 of the surface.
@@ -14,7 +14,8 @@ const STEPS: usize = 16;
 pub struct RefineInput<'a> {
     pub mesh: &'a Mesh,
     pub grid: &'a Grid,
-    pub surface: &'a Surface,
+    /// Finds the triangles near a slab.
+    pub field: &'a WindingField<'a>,
     pub solid: &'a [bool],
     /// Box id per voxel, `u32::MAX` where none.
     pub owner: &'a [u32],
@@ -63,7 +64,6 @@ fn max_push(input: &RefineInput, id: u32, lo: DVec3, hi: DVec3, axis: usize, pos
     let first = ((a + inset - origin) / h).floor();
     let last = ((b - inset - origin) / h).floor();
     let dims = input.grid.dims;
-    let mut triangles = Vec::new();
     for x in first.x as i64..=last.x as i64 {
         for y in first.y as i64..=last.y as i64 {
             for z in first.z as i64..=last.z as i64 {
@@ -75,20 +75,29 @@ fn max_push(input: &RefineInput, id: u32, lo: DVec3, hi: DVec3, axis: usize, pos
                 if !input.solid[index] || (owner != u32::MAX && owner != id) {
                     return 0.0;
                 }
-                triangles.extend(input.surface.triangles_in(index));
             }
         }
     }
-    triangles.sort_unstable();
-    triangles.dedup();
-    let corners: Vec<[DVec3; 3]> = triangles
-        .iter()
-        .map(|&t| input.mesh.corners(t as usize).map(|p| p.as_dvec3()))
+    // Every slab tried lies within the largest one, so only triangles whose bounds meet it
+    // can block.
+    let corners: Vec<[[f64; 3]; 3]> = input
+        .field
+        .triangles_over(a.truncate(), b.truncate())
+        .into_iter()
+        .map(|t| input.mesh.corners(t as usize).map(|p| p.as_dvec3()))
+        .filter(|tri| {
+            let lo = tri[0].min(tri[1]).min(tri[2]);
+            let hi = tri[0].max(tri[1]).max(tri[2]);
+            lo.cmple(b).all() && hi.cmpge(a).all()
+        })
+        .map(|tri| tri.map(|p| p.to_array()))
         .collect();
     let touches = |t: f64| {
         let (a, b) = slab(t);
         let (center, half) = ((a + b) * 0.5, (b - a) * 0.5);
-        corners.iter().any(|tri| triangle_box_overlap(center, half, tri))
+        corners
+            .iter()
+            .any(|tri| triangle_box_overlap(center.to_array(), half.to_array(), tri))
     };
     if !touches(h) {
         return h;

@@ -378,7 +378,8 @@ impl Service {
             let (mesh, stats) = input.load().map_err(|e| fail("bad_mesh", e.to_string()))?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
             let progress = |stage: &str, done: f64| service.set_progress(&running, stage, done);
-            let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress);
+            let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress)
+                .map_err(|e| fail("gpu", e.to_string()))?;
             for (stage, ms) in &cooked.report.timings_ms.0 {
                 metrics::histogram!("occluder_cook_stage_seconds", "stage" => stage.clone()).record(ms / 1e3);
             }

@@ -7,20 +7,21 @@
 
 use super::Grid;
 use crate::mesh::Mesh;
-use glam::{DVec2, DVec3};
+use num_traits::Float;
 use rayon::prelude::*;
 
 /// One crossing of a vertical ray with a triangle: its height, and +1 where the triangle faces
 /// up (the ray leaves the solid there), -1 where it faces down.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Crossing {
-    pub z: f64,
+pub struct Crossing<F> {
+    pub z: F,
     pub sign: i8,
 }
 
-/// Where the vertical line through `p` meets triangle `tri`, if it does.
-pub fn column_hit(tri: &[DVec3; 3], p: DVec2) -> Option<Crossing> {
-    let q = tri.map(|v| v.truncate());
+/// Where the vertical line through `p` meets triangle `tri`, if it does, at any float
+/// precision; the order of operations matches `column_hit` in shaders/common.wgsl.
+pub fn column_hit<F: Float>(tri: &[[F; 3]; 3], p: [F; 2]) -> Option<Crossing<F>> {
+    let q = tri.map(|v| [v[0], v[1]]);
     let w0 = edge_side(q[1], q[2], p);
     let w1 = edge_side(q[2], q[0], p);
     let w2 = edge_side(q[0], q[1], p);
@@ -29,11 +30,11 @@ pub fn column_hit(tri: &[DVec3; 3], p: DVec2) -> Option<Crossing> {
         return None;
     }
     let total = w0.0 + w1.0 + w2.0;
-    let z = if total != 0.0 {
-        (w0.0 * tri[0].z + w1.0 * tri[1].z + w2.0 * tri[2].z) / total
+    let z = if total != F::zero() {
+        (w0.0 * tri[0][2] + w1.0 * tri[1][2] + w2.0 * tri[2][2]) / total
     } else {
         // The point sits on a vertex up to rounding; any corner height is right.
-        tri[0].z
+        tri[0][2]
     };
     Some(Crossing { z, sign: s })
 }
@@ -41,51 +42,57 @@ pub fn column_hit(tri: &[DVec3; 3], p: DVec2) -> Option<Crossing> {
 /// The side of the directed edge a→b on which `p` lies: (the signed area, its sign with ties
 /// broken by perturbing `p`). Computed for the lexicographically ordered edge so that the two
 /// triangles sharing an edge see exactly opposite values.
-fn edge_side(a: DVec2, b: DVec2, p: DVec2) -> (f64, i8) {
-    let (a, b, flip) = if (a.x, a.y) < (b.x, b.y) {
-        (a, b, 1.0)
+fn edge_side<F: Float>(a: [F; 2], b: [F; 2], p: [F; 2]) -> (F, i8) {
+    let (a, b, flip) = if (a[0], a[1]) < (b[0], b[1]) {
+        (a, b, 1)
     } else {
-        (b, a, -1.0)
+        (b, a, -1)
     };
-    let area = (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x);
-    let tie = if area != 0.0 {
+    let area = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+    let tie = if area != F::zero() {
         area
-    } else if b.y != a.y {
-        -(b.y - a.y)
+    } else if b[1] != a[1] {
+        -(b[1] - a[1])
     } else {
-        b.x - a.x
+        b[0] - a[0]
     };
-    let sign = if tie > 0.0 {
+    let sign = if tie > F::zero() {
         1
-    } else if tie < 0.0 {
+    } else if tie < F::zero() {
         -1
     } else {
         0
     };
-    (flip * area, (flip as i8) * sign)
+    let signed = if flip > 0 { area } else { -area };
+    (signed, flip * sign)
+}
+
+/// How many voxel centres of a column of `n` lie below height `z` (k + 0.5 < z), in voxel
+/// units: `voxels_below` in shaders/common.wgsl.
+pub fn voxels_below(z: f32, n: usize) -> usize {
+    ((z - 0.5).ceil() as i32).clamp(0, n as i32) as usize
 }
 
 /// The crossings of every voxel column of a grid, sorted by height within each column.
 pub struct ColumnCrossings {
     /// Column `c` (= x * ny + y) owns `crossings[offsets[c]..offsets[c + 1]]`.
     pub offsets: Vec<usize>,
-    pub crossings: Vec<Crossing>,
+    pub crossings: Vec<Crossing<f32>>,
 }
 
 impl ColumnCrossings {
     pub fn build(mesh: &Mesh, grid: &Grid) -> ColumnCrossings {
         let [nx, ny, _] = grid.dims;
-        let mut hits: Vec<(u32, Crossing)> = (0..mesh.triangles.len())
-            .into_par_iter()
-            .flat_map_iter(|t| {
-                let tri = mesh.corners(t).map(|p| p.as_dvec3());
-                let lo = tri[0].min(tri[1]).min(tri[2]);
-                let hi = tri[0].max(tri[1]).max(tri[2]);
-                let [rx, ry, _] = grid.voxel_range(lo, hi);
+        let corners = grid.local_corners(mesh);
+        let mut hits: Vec<(u32, Crossing<f32>)> = corners
+            .par_chunks_exact(9)
+            .flat_map_iter(|c| {
+                let tri = [[c[0], c[1], c[2]], [c[3], c[4], c[5]], [c[6], c[7], c[8]]];
+                let [rx, ry, _] = Grid::local_spans(&tri, grid.dims);
                 let mut out = Vec::new();
                 for x in rx {
                     for y in ry.clone() {
-                        let p = grid.center(x, y, 0).truncate();
+                        let p = [x as f32 + 0.5, y as f32 + 0.5];
                         if let Some(c) = column_hit(&tri, p) {
                             out.push(((x * ny + y) as u32, c));
                         }
@@ -108,7 +115,7 @@ impl ColumnCrossings {
         }
     }
 
-    pub fn column(&self, c: usize) -> &[Crossing] {
+    pub fn column(&self, c: usize) -> &[Crossing<f32>] {
         &self.crossings[self.offsets[c]..self.offsets[c + 1]]
     }
 
@@ -117,13 +124,11 @@ impl ColumnCrossings {
     pub fn above(&self, grid: &Grid, c: usize) -> impl Iterator<Item = (i32, u32)> + '_ {
         let column = self.column(c);
         let total: i32 = column.iter().map(|h| i32::from(h.sign)).sum();
-        let (x, y) = (c / grid.dims[1], c % grid.dims[1]);
+        let nz = grid.dims[2];
         let mut below = 0usize;
         let mut below_sum = 0i32;
-        let grid = grid.clone();
-        (0..grid.dims[2]).map(move |z| {
-            let zc = grid.center(x, y, z).z;
-            while below < column.len() && column[below].z <= zc {
+        (0..nz).map(move |z| {
+            while below < column.len() && voxels_below(column[below].z, nz) <= z {
                 below_sum += i32::from(column[below].sign);
                 below += 1;
             }

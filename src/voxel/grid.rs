@@ -1,5 +1,6 @@
 //! A cubic-voxel grid fitted around a mesh, padded by one voxel on every side.
 
+use crate::mesh::Mesh;
 use glam::{DVec3, Vec3};
 use serde::Serialize;
 use std::ops::Range;
@@ -82,6 +83,36 @@ impl Grid {
         std::array::from_fn(|k| {
             let start = (a[k].floor() as i64 - 1).clamp(0, self.dims[k] as i64) as usize;
             let end = (b[k].floor() as i64 + 2).clamp(0, self.dims[k] as i64) as usize;
+            start..end
+        })
+    }
+
+    /// Each triangle's corners in voxel units (voxel (i, j, k) spans [i, i + 1]), nine floats a
+    /// triangle: what the GPU voxel stages and their CPU twins read.
+    pub fn local_corners(&self, mesh: &Mesh) -> Vec<f32> {
+        let mut out = Vec::with_capacity(mesh.triangles.len() * 9);
+        for t in 0..mesh.triangles.len() {
+            for p in mesh.corners(t) {
+                out.extend(self.local(p.as_dvec3()));
+            }
+        }
+        out
+    }
+
+    /// `p` in voxel units, rounded once to f32.
+    pub fn local(&self, p: DVec3) -> [f32; 3] {
+        ((p - self.origin()) / self.voxel_size).as_vec3().to_array()
+    }
+
+    /// The voxels whose closed extent meets a triangle's bounds, in voxel units: as
+    /// [`Grid::voxel_range`], in the shaders' f32 arithmetic (`voxel_span` in common.wgsl).
+    pub fn local_spans(tri: &[[f32; 3]; 3], dims: [usize; 3]) -> [Range<usize>; 3] {
+        std::array::from_fn(|k| {
+            let lo = tri[0][k].min(tri[1][k]).min(tri[2][k]);
+            let hi = tri[0][k].max(tri[1][k]).max(tri[2][k]);
+            let n = dims[k] as i32;
+            let start = (lo.floor() as i32 - 1).clamp(0, n) as usize;
+            let end = (hi.floor() as i32 + 2).clamp(0, n) as usize;
             start..end
         })
     }

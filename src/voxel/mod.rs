@@ -1,7 +1,8 @@
 //! Voxelization: the grid, the surface voxels, and the inside/outside classification.
 //!
-//! Each stage works on flat `Vec<bool>` grids indexed by [`Grid::index`], so that the GPU twins
-//! of a later stage can share the layout.
+//! Each stage works on flat `Vec<bool>` grids indexed by [`Grid::index`]. The surface, parity and
+//! winding stages have GPU twins in [`crate::gpu::voxel`]; given a device, these functions run
+//! those.
 
 pub mod columns;
 pub mod grid;
@@ -9,6 +10,7 @@ pub mod parity;
 pub mod surface;
 pub mod winding;
 
+use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{Mesh, Topology};
 pub use grid::Grid;
 use serde::{Deserialize, Serialize};
@@ -23,11 +25,31 @@ pub enum InsideMethod {
     Parity,
 }
 
-/// Which voxel centres lie inside the solid.
-pub fn classify(method: InsideMethod, mesh: &Mesh, topology: &Topology, grid: &Grid) -> Vec<bool> {
+/// Which voxels some triangle touches, on `gpu` when given.
+pub fn surface(mesh: &Mesh, grid: &Grid, gpu: Option<&Gpu>) -> Result<Vec<bool>, GpuError> {
+    match gpu {
+        Some(gpu) => crate::gpu::voxel::surface(gpu, mesh, grid),
+        None => Ok(surface::voxelize(mesh, grid)),
+    }
+}
+
+/// Which voxel centres lie inside the solid, on `gpu` when given.
+pub fn classify(
+    method: InsideMethod,
+    mesh: &Mesh,
+    topology: &Topology,
+    grid: &Grid,
+    gpu: Option<&Gpu>,
+) -> Result<Vec<bool>, GpuError> {
+    if let Some(gpu) = gpu {
+        return match method {
+            InsideMethod::Winding => crate::gpu::voxel::winding(gpu, mesh, &topology.boundary, grid),
+            InsideMethod::Parity => crate::gpu::voxel::parity(gpu, mesh, grid),
+        };
+    }
     let crossings = columns::ColumnCrossings::build(mesh, grid);
-    match method {
+    Ok(match method {
         InsideMethod::Winding => winding::classify(&crossings, mesh, &topology.boundary, grid),
         InsideMethod::Parity => parity::classify(&crossings, grid),
-    }
+    })
 }

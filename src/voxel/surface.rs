@@ -1,87 +1,88 @@
 //! Conservative surface voxelization: every voxel that a triangle touches, by the
-//! separating-axis triangle/box test of Akenine-Möller.
+//! separating-axis triangle/box test of Akenine-Möller. The CPU twin of `shaders/surface.wgsl`:
+//! the same f32 arithmetic in voxel units, term by term, so both mark the same voxels.
 
 use super::Grid;
 use crate::mesh::Mesh;
-use glam::DVec3;
+use num_traits::Float;
 use rayon::prelude::*;
 
-/// Surface voxels, and which triangles touch each of them.
-pub struct Surface {
-    pub voxels: Vec<bool>,
-    /// (voxel index, triangle index), sorted.
-    pub touches: Vec<(u32, u32)>,
-}
+/// Half a voxel plus this, in voxel units, so that rounding never misses a touch: extra
+/// surface voxels only make the inner set smaller, which stays conservative.
+pub const SLACK: f32 = 1e-4;
 
-impl Surface {
-    /// The triangles that touch voxel `index`.
-    pub fn triangles_in(&self, index: usize) -> impl Iterator<Item = u32> + '_ {
-        let start = self.touches.partition_point(|&(v, _)| (v as usize) < index);
-        self.touches[start..]
-            .iter()
-            .take_while(move |&&(v, _)| v as usize == index)
-            .map(|&(_, t)| t)
-    }
-}
-
-pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Surface {
-    // A hair of slack so that rounding never misses a touch: extra surface voxels only make
-    // the inner set smaller, which stays conservative.
-    let half = DVec3::splat(grid.voxel_size * (0.5 + 1e-6));
-    let mut touches: Vec<(u32, u32)> = (0..mesh.triangles.len())
-        .into_par_iter()
-        .flat_map_iter(|t| {
-            let tri = mesh.corners(t).map(|p| p.as_dvec3());
-            let lo = tri[0].min(tri[1]).min(tri[2]);
-            let hi = tri[0].max(tri[1]).max(tri[2]);
-            let [rx, ry, rz] = grid.voxel_range(lo, hi);
-            let mut hits = Vec::new();
-            for x in rx {
-                for y in ry.clone() {
-                    for z in rz.clone() {
-                        if triangle_box_overlap(grid.center(x, y, z), half, &tri) {
-                            hits.push((grid.index(x, y, z) as u32, t as u32));
+/// Which voxels some triangle touches.
+pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
+    let corners = grid.local_corners(mesh);
+    let [nx, ny, nz] = grid.dims;
+    let half = 0.5 + SLACK;
+    let mut hits: Vec<usize> = corners
+        .par_chunks_exact(9)
+        .flat_map_iter(|c| {
+            let tri = [[c[0], c[1], c[2]], [c[3], c[4], c[5]], [c[6], c[7], c[8]]];
+            let [xs, ys, zs] = Grid::local_spans(&tri, [nx, ny, nz]);
+            let mut out = Vec::new();
+            for x in xs {
+                for y in ys.clone() {
+                    for z in zs.clone() {
+                        let centre = [x as f32 + 0.5, y as f32 + 0.5, z as f32 + 0.5];
+                        if triangle_box_overlap(centre, [half; 3], &tri) {
+                            out.push((x * ny + y) * nz + z);
                         }
                     }
                 }
             }
-            hits
+            out
         })
         .collect();
-    touches.par_sort_unstable();
+    hits.par_sort_unstable();
     let mut voxels = vec![false; grid.len()];
-    for &(v, _) in &touches {
-        voxels[v as usize] = true;
+    for v in hits {
+        voxels[v] = true;
     }
-    Surface { voxels, touches }
+    voxels
 }
 
-/// Whether triangle `tri` meets the closed box `center ± half` (Akenine-Möller 2001).
-pub fn triangle_box_overlap(center: DVec3, half: DVec3, tri: &[DVec3; 3]) -> bool {
-    let v = tri.map(|p| p - center);
+fn separated<F: Float>(p: [F; 3], r: F) -> bool {
+    let lo = p[0].min(p[1]).min(p[2]);
+    let hi = p[0].max(p[1]).max(p[2]);
+    lo > r || hi < -r
+}
+
+fn sub<F: Float>(a: [F; 3], b: [F; 3]) -> [F; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// Whether triangle `tri` meets the closed box `center ± half` (Akenine-Möller 2001), at any
+/// float precision. The order of every operation matches the shader's.
+pub fn triangle_box_overlap<F: Float>(center: [F; 3], half: [F; 3], tri: &[[F; 3]; 3]) -> bool {
+    let [a, b, d] = tri.map(|p| sub(p, center));
     // The box's face normals.
     for k in 0..3 {
-        let (lo, hi) = (v[0][k].min(v[1][k]).min(v[2][k]), v[0][k].max(v[1][k]).max(v[2][k]));
-        if lo > half[k] || hi < -half[k] {
+        if separated([a[k], b[k], d[k]], half[k]) {
             return false;
         }
     }
-    let edges = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+    let edges = [sub(b, a), sub(d, b), sub(a, d)];
+    let (e0, e1) = (edges[0], edges[1]);
     // The triangle's plane.
-    let normal = edges[0].cross(edges[1]);
-    let radius = half.dot(normal.abs());
-    if normal.dot(v[0]).abs() > radius {
+    let n = [
+        e0[1] * e1[2] - e0[2] * e1[1],
+        e0[2] * e1[0] - e0[0] * e1[2],
+        e0[0] * e1[1] - e0[1] * e1[0],
+    ];
+    let r = half[0] * n[0].abs() + half[1] * n[1].abs() + half[2] * n[2].abs();
+    if (n[0] * a[0] + n[1] * a[1] + n[2] * a[2]).abs() > r {
         return false;
     }
     // The nine cross products of box axes and triangle edges.
     for e in edges {
-        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-            let a = axis.cross(e);
-            let p = v.map(|q| a.dot(q));
-            let r = half.dot(a.abs());
-            if p[0].min(p[1]).min(p[2]) > r || p[0].max(p[1]).max(p[2]) < -r {
-                return false;
-            }
+        let project = |i: usize, j: usize| [a, b, d].map(|q| e[i] * q[j] - e[j] * q[i]);
+        let rx = half[2] * e[1].abs() + half[1] * e[2].abs();
+        let ry = half[0] * e[2].abs() + half[2] * e[0].abs();
+        let rz = half[1] * e[0].abs() + half[0] * e[1].abs();
+        if separated(project(1, 2), rx) || separated(project(2, 0), ry) || separated(project(0, 1), rz) {
+            return false;
         }
     }
     true

@@ -165,6 +165,23 @@ impl<'a> WindingField<'a> {
         }
     }
 
+    /// The triangles whose footprint buckets meet the xy box [lo, hi]: a superset of those
+    /// that reach into it, sorted.
+    pub fn triangles_over(&self, lo: DVec2, hi: DVec2) -> Vec<u32> {
+        let bucket =
+            |p: DVec2, k: usize| (((p[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize).min(self.dims[k] - 1);
+        let mut out = Vec::new();
+        for x in bucket(lo, 0)..=bucket(hi, 0) {
+            for y in bucket(lo, 1)..=bucket(hi, 1) {
+                let b = x * self.dims[1] + y;
+                out.extend_from_slice(&self.triangles[self.offsets[b]..self.offsets[b + 1]]);
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
     pub fn winding(&self, p: DVec3) -> f64 {
         f64::from(self.crossings_above(p).0) + boundary_term(self.mesh, self.boundary, p)
     }
@@ -177,8 +194,8 @@ impl<'a> WindingField<'a> {
         if q.x >= 0.0 && q.y >= 0.0 && (q.x as usize) < self.dims[0] && (q.y as usize) < self.dims[1] {
             let b = q.x as usize * self.dims[1] + q.y as usize;
             for &t in &self.triangles[self.offsets[b]..self.offsets[b + 1]] {
-                let tri = self.mesh.corners(t as usize).map(|v| v.as_dvec3());
-                if let Some(hit) = column_hit(&tri, p.truncate())
+                let tri = self.mesh.corners(t as usize).map(|v| v.as_dvec3().to_array());
+                if let Some(hit) = column_hit(&tri, [p.x, p.y])
                     && hit.z > p.z
                 {
                     sum += i32::from(hit.sign);

@@ -49,7 +49,7 @@ pub fn defaults() -> Settings {
 
 /// Cooks a synthetic mesh with evaluation at the default settings.
 pub fn cook_evaluated(mesh: Mesh) -> Cooked {
-    cook(mesh, IngestStats::default(), 0.0, &defaults(), true)
+    cook(mesh, IngestStats::default(), 0.0, &defaults(), true).expect("cooks")
 }
 
 /// The shared corpus of meshes, or None (with a message saying so) when it is absent.

@@ -1,0 +1,86 @@
+// Shared by the voxel stages: the parameters, triangles in voxel units, and the grid ranges.
+// Mirrors src/voxel/grid.rs and src/voxel/columns.rs operation for operation, so that the CPU
+// twins agree bit for bit.
+
+struct Params {
+    dims_x: u32,
+    dims_y: u32,
+    dims_z: u32,
+    // The slab of x layers this dispatch writes: [slab_start, slab_end).
+    slab_start: u32,
+    slab_end: u32,
+    triangles: u32,
+    boundary_edges: u32,
+    // Half a voxel plus slack, in voxel units.
+    half: f32,
+}
+
+const GROUPS_X: u32 = 65535u;
+
+fn flat_group(group: vec3<u32>) -> u32 {
+    return group.x + group.y * GROUPS_X;
+}
+
+fn corner(t: u32, k: u32) -> vec3<f32> {
+    let i = 9u * t + 3u * k;
+    return vec3<f32>(corners[i], corners[i + 1u], corners[i + 2u]);
+}
+
+// The voxels whose closed extent meets [lo, hi] along one axis, clamped to [0, n).
+fn voxel_span(lo: f32, hi: f32, n: u32) -> vec2<u32> {
+    let start = clamp(i32(floor(lo)) - 1, 0, i32(n));
+    let end = clamp(i32(floor(hi)) + 2, 0, i32(n));
+    return vec2<u32>(u32(start), u32(end));
+}
+
+// (signed area of p against the lexicographically ordered edge, its sign with ties broken),
+// both flipped back to the edge a->b.
+fn edge_side(a: vec2<f32>, b: vec2<f32>, p: vec2<f32>) -> vec2<f32> {
+    var lo = a;
+    var hi = b;
+    var flip = 1.0;
+    if !(a.x < b.x || (a.x == b.x && a.y < b.y)) {
+        lo = b;
+        hi = a;
+        flip = -1.0;
+    }
+    let area = (hi.x - lo.x) * (p.y - lo.y) - (hi.y - lo.y) * (p.x - lo.x);
+    var tie = area;
+    if area == 0.0 {
+        if hi.y != lo.y {
+            tie = -(hi.y - lo.y);
+        } else {
+            tie = hi.x - lo.x;
+        }
+    }
+    var side = 0.0;
+    if tie > 0.0 {
+        side = 1.0;
+    } else if tie < 0.0 {
+        side = -1.0;
+    }
+    return vec2<f32>(flip * area, flip * side);
+}
+
+// Where the vertical line through p meets the triangle: (1 if it does, height, +1 facing up /
+// -1 facing down).
+fn column_hit(v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, p: vec2<f32>) -> vec3<f32> {
+    let w0 = edge_side(v1.xy, v2.xy, p);
+    let w1 = edge_side(v2.xy, v0.xy, p);
+    let w2 = edge_side(v0.xy, v1.xy, p);
+    let s = w0.y;
+    if s == 0.0 || w1.y != s || w2.y != s {
+        return vec3<f32>(0.0, 0.0, 0.0);
+    }
+    let total = w0.x + w1.x + w2.x;
+    var z = v0.z;
+    if total != 0.0 {
+        z = (w0.x * v0.z + w1.x * v1.z + w2.x * v2.z) / total;
+    }
+    return vec3<f32>(1.0, z, s);
+}
+
+// How many voxel centres of a column lie below height z (k + 0.5 < z).
+fn voxels_below(z: f32, n: u32) -> u32 {
+    return u32(clamp(i32(ceil(z - 0.5)), 0, i32(n)));
+}

@@ -1,0 +1,78 @@
+// Conservative surface voxelization: a workgroup per triangle, its lanes over the voxels of the
+// triangle's bounds, the separating-axis test, atomicOr into a bit grid. Twin: src/voxel/surface.rs.
+
+@group(0) @binding(0) var<storage, read> params: Params;
+@group(0) @binding(1) var<storage, read> corners: array<f32>;
+@group(0) @binding(2) var<storage, read_write> bits: array<atomic<u32>>;
+
+fn separated(lo: f32, hi: f32, r: f32) -> bool {
+    return lo > r || hi < -r;
+}
+
+fn axis_separates(p0: f32, p1: f32, p2: f32, r: f32) -> bool {
+    return separated(min(min(p0, p1), p2), max(max(p0, p1), p2), r);
+}
+
+// Akenine-Möller's triangle/box test with the box centred at c, written out term by term as in
+// the CPU twin.
+fn overlaps(c: vec3<f32>, h: f32, t0: vec3<f32>, t1: vec3<f32>, t2: vec3<f32>) -> bool {
+    let a = t0 - c;
+    let b = t1 - c;
+    let d = t2 - c;
+    if axis_separates(a.x, b.x, d.x, h) || axis_separates(a.y, b.y, d.y, h) || axis_separates(a.z, b.z, d.z, h) {
+        return false;
+    }
+    let e0 = b - a;
+    let e1 = d - b;
+    let e2 = a - d;
+    let n = vec3<f32>(e0.y * e1.z - e0.z * e1.y, e0.z * e1.x - e0.x * e1.z, e0.x * e1.y - e0.y * e1.x);
+    let r = h * abs(n.x) + h * abs(n.y) + h * abs(n.z);
+    if abs(n.x * a.x + n.y * a.y + n.z * a.z) > r {
+        return false;
+    }
+    return !(edge_separates(e0, a, b, d, h) || edge_separates(e1, a, b, d, h) || edge_separates(e2, a, b, d, h));
+}
+
+// The three axes (x, y, z) cross edge e.
+fn edge_separates(e: vec3<f32>, a: vec3<f32>, b: vec3<f32>, d: vec3<f32>, h: f32) -> bool {
+    let rx = h * abs(e.y) + h * abs(e.z);
+    let ry = h * abs(e.z) + h * abs(e.x);
+    let rz = h * abs(e.x) + h * abs(e.y);
+    return axis_separates(e.y * a.z - e.z * a.y, e.y * b.z - e.z * b.y, e.y * d.z - e.z * d.y, rx)
+        || axis_separates(e.z * a.x - e.x * a.z, e.z * b.x - e.x * b.z, e.z * d.x - e.x * d.z, ry)
+        || axis_separates(e.x * a.y - e.y * a.x, e.x * b.y - e.y * b.x, e.x * d.y - e.y * d.x, rz);
+}
+
+@compute @workgroup_size(64)
+fn surface(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let t = flat_group(group);
+    if t >= params.triangles {
+        return;
+    }
+    let t0 = corner(t, 0u);
+    let t1 = corner(t, 1u);
+    let t2 = corner(t, 2u);
+    let lo = min(min(t0, t1), t2);
+    let hi = max(max(t0, t1), t2);
+    let xs = voxel_span(lo.x, hi.x, params.dims_x);
+    let ys = voxel_span(lo.y, hi.y, params.dims_y);
+    let zs = voxel_span(lo.z, hi.z, params.dims_z);
+    let x0 = max(xs.x, params.slab_start);
+    let x1 = min(xs.y, params.slab_end);
+    if x0 >= x1 || ys.x >= ys.y || zs.x >= zs.y {
+        return;
+    }
+    let ny = ys.y - ys.x;
+    let nz = zs.y - zs.x;
+    let count = (x1 - x0) * ny * nz;
+    for (var i = lane; i < count; i += 64u) {
+        let x = x0 + i / (ny * nz);
+        let y = ys.x + (i / nz) % ny;
+        let z = zs.x + i % nz;
+        let centre = vec3<f32>(f32(x), f32(y), f32(z)) + vec3<f32>(0.5);
+        if overlaps(centre, params.half, t0, t1, t2) {
+            let bit = ((x - params.slab_start) * params.dims_y + y) * params.dims_z + z;
+            atomicOr(&bits[bit / 32u], 1u << (bit % 32u));
+        }
+    }
+}

@@ -1,0 +1,87 @@
+// Generalized winding number w >= 0.5, as in src/voxel/winding.rs: the signed crossings above
+// each voxel plus the solid angle of a curtain hung from the open boundary.
+// `crossings`: each crossing adds its sign to the highest voxel below it. `classify`: a thread
+// per column sums from the top, adds the curtain term (every voxel, where the CPU twin
+// interpolates), and writes 1 for inside, 0 for outside, in place.
+
+@group(0) @binding(0) var<storage, read> params: Params;
+@group(0) @binding(1) var<storage, read> corners: array<f32>;
+@group(0) @binding(2) var<storage, read_write> sums: array<atomic<i32>>;
+// Boundary edges: a.xyz, b.xyz, weight, padding.
+@group(0) @binding(3) var<storage, read> boundary: array<f32>;
+
+const PI: f32 = 3.14159265358979;
+
+@compute @workgroup_size(64)
+fn crossings(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let t = flat_group(group);
+    if t >= params.triangles {
+        return;
+    }
+    let t0 = corner(t, 0u);
+    let t1 = corner(t, 1u);
+    let t2 = corner(t, 2u);
+    let lo = min(min(t0, t1), t2);
+    let hi = max(max(t0, t1), t2);
+    let xs = voxel_span(lo.x, hi.x, params.dims_x);
+    let ys = voxel_span(lo.y, hi.y, params.dims_y);
+    let x0 = max(xs.x, params.slab_start);
+    let x1 = min(xs.y, params.slab_end);
+    if x0 >= x1 || ys.x >= ys.y {
+        return;
+    }
+    let ny = ys.y - ys.x;
+    let count = (x1 - x0) * ny;
+    for (var i = lane; i < count; i += 64u) {
+        let x = x0 + i / ny;
+        let y = ys.x + i % ny;
+        let hit = column_hit(t0, t1, t2, vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));
+        let below = voxels_below(hit.y, params.dims_z);
+        if hit.x != 0.0 && below > 0u {
+            let start = ((x - params.slab_start) * params.dims_y + y) * params.dims_z;
+            atomicAdd(&sums[start + below - 1u], i32(hit.z));
+        }
+    }
+}
+
+// The solid angle of the triangle (a, b, -z) seen from the origin.
+fn curtain_angle(a: vec3<f32>, b: vec3<f32>) -> f32 {
+    let la = length(a);
+    let lb = length(b);
+    let numerator = a.y * b.x - a.x * b.y;
+    let denominator = la * lb + dot(a, b) - a.z * lb - b.z * la;
+    return 2.0 * atan2(numerator, denominator);
+}
+
+fn curtain(p: vec3<f32>) -> f32 {
+    var sum = 0.0;
+    for (var e = 0u; e < params.boundary_edges; e++) {
+        let i = 8u * e;
+        let a = vec3<f32>(boundary[i], boundary[i + 1u], boundary[i + 2u]) - p;
+        let b = vec3<f32>(boundary[i + 3u], boundary[i + 4u], boundary[i + 5u]) - p;
+        sum += boundary[i + 6u] * curtain_angle(a, b);
+    }
+    return sum / (4.0 * PI);
+}
+
+@compute @workgroup_size(64)
+fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let column = flat_group(group) * 64u + lane;
+    let columns = (params.slab_end - params.slab_start) * params.dims_y;
+    if column >= columns {
+        return;
+    }
+    let x = params.slab_start + column / params.dims_y;
+    let y = column % params.dims_y;
+    let start = column * params.dims_z;
+    var above = 0;
+    for (var z = i32(params.dims_z) - 1; z >= 0; z--) {
+        let i = start + u32(z);
+        above += atomicLoad(&sums[i]);
+        var w = f32(above);
+        if params.boundary_edges > 0u {
+            w += curtain(vec3<f32>(f32(x) + 0.5, f32(y) + 0.5, f32(z) + 0.5));
+        }
+        atomicStore(&sums[i], select(0, 1, w >= 0.5));
+    }
+}

@@ -1,0 +1,280 @@
+//! One wgpu device per process, and the plumbing the GPU stages share: storage buffers,
+//! compute dispatches, read-back and error capture.
+//!
+//! A hardware adapter is preferred; without one, Mesa's lavapipe (a software Vulkan) runs the
+//! same shaders on the CPU. A lost device is dropped and opened again for the next job.
+
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use wgpu::util::DeviceExt;
+
+pub mod voxel;
+
+/// Where the voxel stages run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum DeviceChoice {
+    /// The GPU when an adapter exists (lavapipe counts), else the CPU, saying so in the report.
+    Auto,
+    /// The GPU; fails when there is no adapter.
+    Gpu,
+    /// The plain-Rust stages.
+    Cpu,
+}
+
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "no GPU adapter: wgpu found no Vulkan device (install mesa-vulkan-drivers for lavapipe, or use device=cpu)"
+    )]
+    NoAdapter,
+    #[error("the GPU device could not be opened: {0}")]
+    Open(String),
+    #[error("the GPU ran out of memory: {0}")]
+    OutOfMemory(String),
+    #[error("the GPU device was lost: {0}")]
+    Lost(String),
+    #[error("GPU error: {0}")]
+    Other(String),
+}
+
+/// An open device and the pipelines built on it.
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    /// The largest storage buffer one binding may hold (lavapipe: 128 MiB).
+    pub max_binding: u64,
+    lost: Arc<AtomicBool>,
+    pipelines: Mutex<HashMap<(usize, &'static str), wgpu::ComputePipeline>>,
+}
+
+static DEVICE: Mutex<Option<Arc<Gpu>>> = Mutex::new(None);
+
+/// The process's device, opened on first use and again after a loss.
+pub fn device() -> Result<Arc<Gpu>, GpuError> {
+    let mut slot = DEVICE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(gpu) = slot.as_ref().filter(|g| !g.lost.load(Ordering::Acquire)) {
+        return Ok(gpu.clone());
+    }
+    let gpu = Arc::new(open()?);
+    *slot = Some(gpu.clone());
+    Ok(gpu)
+}
+
+/// The device for `choice`: `None` means run on the CPU.
+pub fn for_choice(choice: DeviceChoice) -> Result<Option<Arc<Gpu>>, GpuError> {
+    match choice {
+        DeviceChoice::Cpu => Ok(None),
+        DeviceChoice::Gpu => device().map(Some),
+        DeviceChoice::Auto => match device() {
+            Ok(gpu) => Ok(Some(gpu)),
+            Err(GpuError::NoAdapter) => Ok(None),
+            Err(e) => Err(e),
+        },
+    }
+}
+
+fn rank(kind: wgpu::DeviceType) -> u8 {
+    match kind {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    }
+}
+
+fn open() -> Result<Gpu, GpuError> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+    let adapter = adapters
+        .into_iter()
+        .min_by_key(|a| rank(a.get_info().device_type))
+        .ok_or(GpuError::NoAdapter)?;
+    let info = adapter.get_info();
+    let supported = adapter.limits();
+    // Ask for what the adapter has, so large grids need fewer slabs.
+    let limits = wgpu::Limits {
+        max_storage_buffer_binding_size: supported.max_storage_buffer_binding_size,
+        max_buffer_size: supported.max_buffer_size,
+        ..wgpu::Limits::default()
+    };
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("occluder-cook"),
+        required_limits: limits.clone(),
+        ..Default::default()
+    }))
+    .map_err(|e| GpuError::Open(e.to_string()))?;
+    let lost = Arc::new(AtomicBool::new(false));
+    let flag = lost.clone();
+    device.set_device_lost_callback(move |reason, message| {
+        tracing::error!(?reason, message, "GPU device lost");
+        flag.store(true, Ordering::Release);
+    });
+    tracing::info!(adapter = info.name, kind = ?info.device_type, "GPU device opened");
+    Ok(Gpu {
+        device,
+        queue,
+        info,
+        max_binding: u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size),
+        lost,
+        pipelines: Mutex::new(HashMap::new()),
+    })
+}
+
+/// Workgroups are dispatched in a 2D grid of at most this many along x.
+pub const MAX_GROUPS_X: u32 = 65535;
+
+impl Gpu {
+    /// "lavapipe (cpu)", "NVIDIA H100 (discretegpu)": what reports call the device.
+    pub fn name(&self) -> String {
+        format!("{} ({:?})", self.info.name, self.info.device_type).to_lowercase()
+    }
+
+    /// The same device with a smaller largest binding, so that a test or a shared machine can
+    /// force slabs.
+    pub fn with_max_binding(&self, bytes: u64) -> Gpu {
+        Gpu {
+            device: self.device.clone(),
+            queue: self.queue.clone(),
+            info: self.info.clone(),
+            max_binding: bytes.min(self.max_binding),
+            lost: self.lost.clone(),
+            pipelines: Mutex::new(HashMap::new()),
+        }
+    }
+
+    /// Runs `work` and turns the device's out-of-memory, validation and loss into an error for
+    /// this job alone.
+    pub fn run<T>(&self, work: impl FnOnce(&Gpu) -> Result<T, GpuError>) -> Result<T, GpuError> {
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = work(self);
+        let invalid = pollster::block_on(validation.pop());
+        let oom = pollster::block_on(memory.pop());
+        if self.lost.load(Ordering::Acquire) {
+            return Err(GpuError::Lost("the driver reset or removed the device".into()));
+        }
+        if let Some(e) = oom {
+            return Err(GpuError::OutOfMemory(e.to_string()));
+        }
+        if let Some(e) = invalid {
+            return Err(GpuError::Other(e.to_string()));
+        }
+        out
+    }
+
+    pub fn upload<T: bytemuck::Pod>(&self, data: &[T]) -> wgpu::Buffer {
+        // Zero-sized bindings are invalid; an empty array still gets one word.
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let padded;
+        let contents = if bytes.is_empty() {
+            padded = [0u8; 4];
+            &padded[..]
+        } else {
+            bytes
+        };
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        })
+    }
+
+    /// A zeroed storage buffer of `bytes` (rounded up to a word).
+    pub fn zeroed(&self, bytes: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: bytes.max(4).next_multiple_of(4),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        })
+    }
+
+    fn pipeline(&self, source: &'static str, entry: &'static str) -> wgpu::ComputePipeline {
+        let mut cache = self.pipelines.lock().unwrap_or_else(|e| e.into_inner());
+        cache
+            .entry((source.as_ptr() as usize, entry))
+            .or_insert_with(|| {
+                let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(entry),
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                });
+                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(entry),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
+            })
+            .clone()
+    }
+
+    /// Dispatches `groups` workgroups of `entry` in `source`, with `buffers` at their bindings of
+    /// group 0 (only those the entry point uses). Large counts are spread over y; shaders
+    /// rebuild the flat index as `id.x + id.y * MAX_GROUPS_X`.
+    pub fn dispatch(&self, source: &'static str, entry: &'static str, buffers: &[(u32, &wgpu::Buffer)], groups: u32) {
+        if groups == 0 {
+            return;
+        }
+        let pipeline = self.pipeline(source, entry);
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .map(|&(binding, b)| wgpu::BindGroupEntry {
+                binding,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(entry),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind_group, &[]);
+            pass.dispatch_workgroups(groups.min(MAX_GROUPS_X), groups.div_ceil(MAX_GROUPS_X), 1);
+        }
+        self.queue.submit([encoder.finish()]);
+    }
+
+    /// Copies `buffer` back to the host once the queued work is done.
+    pub fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
+        let size = buffer.size();
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read-back"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        self.queue.submit([encoder.finish()]);
+        let (sender, receiver) = std::sync::mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = sender.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Other(e.to_string()))?;
+        match receiver.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(GpuError::Other(format!("read-back failed: {e}"))),
+            Err(_) => return Err(GpuError::Lost("read-back never completed".into())),
+        }
+        let view = staging
+            .get_mapped_range(..)
+            .map_err(|e| GpuError::Other(e.to_string()))?;
+        let out = bytemuck::cast_slice(&view).to_vec();
+        drop(view);
+        staging.unmap();
+        Ok(out)
+    }
+}

@@ -25,7 +25,7 @@ fn flip_range(start: u32, end: u32) {
 
 @compute @workgroup_size(64)
 fn parity(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let t = flat_group(group);
+    let t = flat_group(group) * 64u + lane;
     if t >= params.triangles {
         return;
     }
@@ -43,7 +43,7 @@ fn parity(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_ind
     }
     let ny = ys.y - ys.x;
     let count = (x1 - x0) * ny;
-    for (var i = lane; i < count; i += 64u) {
+    for (var i = 0u; i < count; i++) {
         let x = x0 + i / ny;
         let y = ys.x + i % ny;
         let hit = column_hit(t0, t1, t2, vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));

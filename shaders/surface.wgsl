@@ -1,5 +1,4 @@
-// Conservative surface voxelization: a workgroup per triangle, its lanes over the voxels of the
-// triangle's bounds, the separating-axis test, atomicOr into a bit grid. Twin: src/voxel/surface.rs.
+// Conservative surface voxelization: a thread per triangle over the voxels of its bounds, the separating-axis test, atomicOr into a bit grid. Twin: src/voxel/surface.rs.
 
 @group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> corners: array<f32>;
@@ -45,7 +44,7 @@ fn edge_separates(e: vec3<f32>, a: vec3<f32>, b: vec3<f32>, d: vec3<f32>, h: f32
 
 @compute @workgroup_size(64)
 fn surface(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let t = flat_group(group);
+    let t = flat_group(group) * 64u + lane;
     if t >= params.triangles {
         return;
     }
@@ -65,7 +64,7 @@ fn surface(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_in
     let ny = ys.y - ys.x;
     let nz = zs.y - zs.x;
     let count = (x1 - x0) * ny * nz;
-    for (var i = lane; i < count; i += 64u) {
+    for (var i = 0u; i < count; i++) {
         let x = x0 + i / (ny * nz);
         let y = ys.x + (i / nz) % ny;
         let z = zs.x + i % nz;

@@ -1,8 +1,9 @@
 // Generalized winding number w >= 0.5, as in src/voxel/winding.rs: the signed crossings above
 // each voxel plus the solid angle of a curtain hung from the open boundary.
 // `crossings`: each crossing adds its sign to the highest voxel below it. `classify`: a thread
-// per column sums from the top, adds the curtain term (every voxel, where the CPU twin
-// interpolates), and writes 1 for inside, 0 for outside, in place.
+// per column sums from the top, then adds the curtain term as the CPU twin does (exact every
+// STRIDE voxels, interpolated between where that is safe), and writes 1 for inside, 0 for
+// outside, in place.
 
 @group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> corners: array<f32>;
@@ -14,7 +15,7 @@ const PI: f32 = 3.14159265358979;
 
 @compute @workgroup_size(64)
 fn crossings(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let t = flat_group(group);
+    let t = flat_group(group) * 64u + lane;
     if t >= params.triangles {
         return;
     }
@@ -32,7 +33,7 @@ fn crossings(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_
     }
     let ny = ys.y - ys.x;
     let count = (x1 - x0) * ny;
-    for (var i = lane; i < count; i += 64u) {
+    for (var i = 0u; i < count; i++) {
         let x = x0 + i / ny;
         let y = ys.x + i % ny;
         let hit = column_hit(t0, t1, t2, vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));
@@ -64,6 +65,11 @@ fn curtain(p: vec3<f32>) -> f32 {
     return sum / (4.0 * PI);
 }
 
+// As in src/voxel/winding.rs.
+const STRIDE: u32 = 8u;
+const MAX_STEP: f32 = 0.05;
+const MARGIN: f32 = 0.15;
+
 @compute @workgroup_size(64)
 fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
     let column = flat_group(group) * 64u + lane;
@@ -71,17 +77,40 @@ fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_i
     if column >= columns {
         return;
     }
-    let x = params.slab_start + column / params.dims_y;
-    let y = column % params.dims_y;
+    let x = f32(params.slab_start + column / params.dims_y) + 0.5;
+    let y = f32(column % params.dims_y) + 0.5;
     let start = column * params.dims_z;
+    let nz = params.dims_z;
+    // The signed crossings above each voxel.
     var above = 0;
-    for (var z = i32(params.dims_z) - 1; z >= 0; z--) {
-        let i = start + u32(z);
-        above += atomicLoad(&sums[i]);
-        var w = f32(above);
-        if params.boundary_edges > 0u {
-            w += curtain(vec3<f32>(f32(x) + 0.5, f32(y) + 0.5, f32(z) + 0.5));
+    for (var z = i32(nz) - 1; z >= 0; z--) {
+        above += atomicLoad(&sums[start + u32(z)]);
+        atomicStore(&sums[start + u32(z)], above);
+    }
+    if params.boundary_edges == 0u {
+        for (var z = 0u; z < nz; z++) {
+            atomicStore(&sums[start + z], select(0, 1, atomicLoad(&sums[start + z]) >= 1));
         }
-        atomicStore(&sums[i], select(0, 1, w >= 0.5));
+        return;
+    }
+    var z0 = 0u;
+    var b0 = curtain(vec3<f32>(x, y, 0.5));
+    atomicStore(&sums[start], select(0, 1, f32(atomicLoad(&sums[start])) + b0 >= 0.5));
+    while z0 < nz - 1u {
+        let z1 = min(z0 + STRIDE, nz - 1u);
+        let b1 = curtain(vec3<f32>(x, y, f32(z1) + 0.5));
+        let gentle = abs(b1 - b0) < MAX_STEP;
+        for (var z = z0 + 1u; z < z1; z++) {
+            let count = f32(atomicLoad(&sums[start + z]));
+            let estimate = count + b0 + (b1 - b0) * f32(z - z0) / f32(z1 - z0);
+            var w = estimate;
+            if !(gentle && abs(estimate - 0.5) > MARGIN) {
+                w = count + curtain(vec3<f32>(x, y, f32(z) + 0.5));
+            }
+            atomicStore(&sums[start + z], select(0, 1, w >= 0.5));
+        }
+        atomicStore(&sums[start + z1], select(0, 1, f32(atomicLoad(&sums[start + z1])) + b1 >= 0.5));
+        z0 = z1;
+        b0 = b1;
     }
 }

@@ -39,8 +39,9 @@ pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
 /// Cooks and evaluates every file, printing a row as each finishes.
 pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
     println!(
-        "{:<34} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "mesh",
+        "dev",
         "tris_in",
         "tris",
         "boxes",
@@ -50,6 +51,7 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
         "false",
         "false_nb",
         "outside",
+        "open_ms",
         "surf_ms",
         "inside_ms",
         "pieces_ms",
@@ -96,8 +98,9 @@ fn print_row(name: &str, r: &Report) {
     let t = &r.timings_ms;
     let cook_ms = t.total() - t.get("eval");
     println!(
-        "{:<34} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
         name,
+        if r.gpu_stages.is_empty() { "cpu" } else { "gpu" },
         r.input.triangles,
         r.occluder.triangles,
         r.occluder.boxes,
@@ -107,6 +110,7 @@ fn print_row(name: &str, r: &Report) {
         q.false_pixels,
         q.false_pixels_non_below,
         q.outside_samples * 100.0,
+        t.get("device"),
         t.get("surface"),
         t.get("inside"),
         ["boxes", "refine", "quads", "patches", "select+merge"]

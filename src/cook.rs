@@ -29,10 +29,11 @@ impl Serialize for Timings {
 }
 
 /// The stages of a cook, in order, for progress reports.
-pub const STAGES: [&str; 16] = [
+pub const STAGES: [&str; 17] = [
     "ingest",
     "key",
     "orient",
+    "device",
     "surface",
     "inside",
     "inner",
@@ -213,17 +214,18 @@ pub fn cook_with_progress(
     progress: Progress,
 ) -> Result<Cooked, GpuError> {
     let cook = &settings.cook;
-    let gpu = gpu::for_choice(cook.device)?;
-    let mut notes = Vec::new();
-    if gpu.is_none() && cook.device == gpu::DeviceChoice::Auto {
-        notes.push("device=auto found no GPU adapter, so the voxel stages ran on the CPU".to_string());
-    }
     let mut timings = Clock {
         timings: Timings(vec![("ingest".into(), ingest_ms)]),
         progress,
     };
     let key = timings.time("key", || cache_key(&mesh, cook));
     let topology = timings.time("orient", || orient_closed_components(&mut mesh));
+    // Opening the device and building its pipelines happens once a process.
+    let gpu = timings.time("device", || gpu::for_choice(cook.device))?;
+    let mut notes = Vec::new();
+    if gpu.is_none() && cook.device == gpu::DeviceChoice::Auto {
+        notes.push("device=auto found no GPU adapter, so the voxel stages ran on the CPU".to_string());
+    }
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, cook.resolution);
     let surface = timings.time("surface", || voxel::surface(&mesh, &grid, gpu.as_deref()))?;

@@ -205,6 +205,12 @@ impl SettingsArgs {
 }
 
 fn main() {
+    // Mesa's device-select layer probes for a display (and complains without one); wgpu picks
+    // the adapter itself. Set before any thread starts, as set_var requires.
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: no other thread exists yet.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
@@ -438,6 +444,17 @@ fn run(cli: Cli) -> Result<()> {
             }
             let files = bench::corpus_files(&corpus)?;
             let rows = bench::run(&files, &settings);
+            if let Some(r) = rows.iter().find_map(|row| row.report.as_ref()) {
+                println!(
+                    "device: {}; on it: {}",
+                    r.device,
+                    if r.gpu_stages.is_empty() {
+                        "nothing".into()
+                    } else {
+                        r.gpu_stages.join(", ")
+                    }
+                );
+            }
             write(&json, &serde_json::to_vec_pretty(&rows)?)?;
             println!("wrote {}", json.display());
         }

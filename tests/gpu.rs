@@ -128,3 +128,48 @@ fn grids_larger_than_a_binding_are_done_in_slabs() {
     let sliced = gpu::voxel::surface(&small, &mesh, &grid).expect("slabs run");
     assert_eq!(sliced, surface::voxelize(&mesh, &grid));
 }
+
+/// Runs the binary with the Vulkan loader pointed at no driver at all.
+fn cook_without_adapter(args: &[&str]) -> (i32, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
+        .args(args)
+        .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn device_gpu_without_an_adapter_fails_clearly_and_auto_falls_back_to_the_cpu() {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-noadapter-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mesh = dir.join("box.obj");
+    let cube = cuboid(Vec3::ZERO, Vec3::ONE, &[]);
+    let mut obj = String::new();
+    for p in &cube.positions {
+        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &cube.triangles {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(&mesh, obj).unwrap();
+    let (mesh, out, report) = (mesh.to_str().unwrap(), dir.join("o.glb"), dir.join("r.json"));
+    let (out, report) = (out.to_str().unwrap(), report.to_str().unwrap());
+
+    let (code, stderr) = cook_without_adapter(&["cook", mesh, "-o", out, "--device", "gpu"]);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(stderr.contains("no GPU adapter"), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "one line: {stderr}");
+
+    let (code, stderr) = cook_without_adapter(&["cook", mesh, "-o", out, "--report", report]);
+    assert_eq!(code, 0, "{stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(report).unwrap()).unwrap();
+    assert_eq!(report["device"], "cpu");
+    assert!(report["notes"].to_string().contains("found no GPU adapter"), "{report}");
+    assert!(report["occluder"]["triangles"].as_u64().unwrap() > 0);
+    std::fs::remove_dir_all(&dir).ok();
+}

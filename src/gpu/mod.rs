@@ -115,14 +115,21 @@ fn open() -> Result<Gpu, GpuError> {
         flag.store(true, Ordering::Release);
     });
     tracing::info!(adapter = info.name, kind = ?info.device_type, "GPU device opened");
-    Ok(Gpu {
+    let gpu = Gpu {
         device,
         queue,
         info,
-        max_binding: u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size),
+        max_binding: limits.max_storage_buffer_binding_size.min(limits.max_buffer_size),
         lost,
         pipelines: Mutex::new(HashMap::new()),
-    })
+    };
+    gpu.run(|gpu| {
+        for (source, entry) in voxel::ENTRY_POINTS {
+            gpu.pipeline(source, entry);
+        }
+        Ok(())
+    })?;
+    Ok(gpu)
 }
 
 /// Workgroups are dispatched in a 2D grid of at most this many along x.
@@ -143,7 +150,7 @@ impl Gpu {
             info: self.info.clone(),
             max_binding: bytes.min(self.max_binding),
             lost: self.lost.clone(),
-            pipelines: Mutex::new(HashMap::new()),
+            pipelines: Mutex::new(self.pipelines.lock().unwrap_or_else(|e| e.into_inner()).clone()),
         }
     }
 
@@ -248,14 +255,27 @@ impl Gpu {
     /// Copies `buffer` back to the host once the queued work is done.
     pub fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>, GpuError> {
         let size = buffer.size();
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+        let staging = self.staging(size);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        self.finish_read(encoder, &staging)
+    }
+
+    fn staging(&self, size: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read-back"),
             size,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
-        });
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        })
+    }
+
+    /// Submits `encoder`, waits, and maps `staging`.
+    fn finish_read<T: bytemuck::Pod>(
+        &self,
+        encoder: wgpu::CommandEncoder,
+        staging: &wgpu::Buffer,
+    ) -> Result<Vec<T>, GpuError> {
         self.queue.submit([encoder.finish()]);
         let (sender, receiver) = std::sync::mpsc::channel();
         staging.map_async(wgpu::MapMode::Read, .., move |r| {

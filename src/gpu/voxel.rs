@@ -24,6 +24,15 @@ const WINDING: &str = concat!(
     include_str!("../../shaders/winding.wgsl")
 );
 
+/// Every entry point of the voxel stages, built when the device opens so that no cook pays
+/// for shader compilation.
+pub const ENTRY_POINTS: [(&str, &str); 4] = [
+    (SURFACE, "surface"),
+    (PARITY, "parity"),
+    (WINDING, "crossings"),
+    (WINDING, "classify"),
+];
+
 /// Bytes of one triangle's corners on the GPU.
 const TRIANGLE_BYTES: u64 = 36;
 /// Threads in a workgroup, as the shaders declare.
@@ -86,7 +95,8 @@ fn bit_stage(
             let bits = gpu.zeroed((count as u64).div_ceil(32) * 4);
             for (corners, triangles) in &chunks {
                 let p = gpu.upload(&params(grid, &slab, *triangles, 0));
-                gpu.dispatch(source, entry, &[(0, &p), (1, corners), (2, &bits)], *triangles as u32);
+                let groups = (*triangles as u32).div_ceil(WORKGROUP);
+                gpu.dispatch(source, entry, &[(0, &p), (1, corners), (2, &bits)], groups);
             }
             let words: Vec<u32> = gpu.read(&bits)?;
             let out = &mut voxels[slab.start * layer..slab.end * layer];
@@ -108,7 +118,7 @@ pub fn parity(gpu: &Gpu, mesh: &Mesh, grid: &Grid) -> Result<Vec<bool>, GpuError
     bit_stage(gpu, PARITY, "parity", mesh, grid)
 }
 
-/// Twin of [`crate::voxel::winding::classify`]: the curtain term is evaluated at every voxel.
+/// Twin of [`crate::voxel::winding::classify`].
 pub fn winding(gpu: &Gpu, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -> Result<Vec<bool>, GpuError> {
     gpu.run(|gpu| {
         let [_, ny, nz] = grid.dims;

@@ -9,16 +9,40 @@ struct Params {
     // The slab of x layers this dispatch writes: [slab_start, slab_end).
     slab_start: u32,
     slab_end: u32,
-    triangles: u32,
+    // Work items in this dispatch.
+    items: u32,
     boundary_edges: u32,
     // Half a voxel plus slack, in voxel units.
     half: f32,
+    // Voxels of a column per `classify` thread.
+    segment: u32,
 }
 
 const GROUPS_X: u32 = 65535u;
 
+// llvmpipe (and so lavapipe, Mesa 22) silently ends an invocation's loops after 65535
+// iterations in all, so no invocation may loop more: the host splits the work into items that
+// stay well below (src/gpu/voxel.rs).
+
 fn flat_group(group: vec3<u32>) -> u32 {
     return group.x + group.y * GROUPS_X;
+}
+
+// The voxels of a triangle's bounds within the slab: first voxel and size per axis.
+struct Bounds {
+    lo: vec3<u32>,
+    size: vec3<u32>,
+}
+
+fn slab_bounds(t0: vec3<f32>, t1: vec3<f32>, t2: vec3<f32>) -> Bounds {
+    let lo = min(min(t0, t1), t2);
+    let hi = max(max(t0, t1), t2);
+    let xs = voxel_span(lo.x, hi.x, params.dims_x);
+    let ys = voxel_span(lo.y, hi.y, params.dims_y);
+    let zs = voxel_span(lo.z, hi.z, params.dims_z);
+    let x0 = max(xs.x, params.slab_start);
+    let x1 = max(min(xs.y, params.slab_end), x0);
+    return Bounds(vec3<u32>(x0, ys.x, zs.x), vec3<u32>(x1 - x0, ys.y - ys.x, zs.y - zs.x));
 }
 
 fn corner(t: u32, k: u32) -> vec3<f32> {

@@ -5,6 +5,8 @@
 @group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> corners: array<f32>;
 @group(0) @binding(2) var<storage, read_write> bits: array<atomic<u32>>;
+// (triangle, first column, end column, unused), columns numbered y fastest over the bounds.
+@group(0) @binding(4) var<storage, read> items: array<vec4<u32>>;
 
 // Flips bits [start, end).
 fn flip_range(start: u32, end: u32) {
@@ -25,27 +27,18 @@ fn flip_range(start: u32, end: u32) {
 
 @compute @workgroup_size(64)
 fn parity(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let t = flat_group(group) * 64u + lane;
-    if t >= params.triangles {
+    let id = flat_group(group) * 64u + lane;
+    if id >= params.items {
         return;
     }
-    let t0 = corner(t, 0u);
-    let t1 = corner(t, 1u);
-    let t2 = corner(t, 2u);
-    let lo = min(min(t0, t1), t2);
-    let hi = max(max(t0, t1), t2);
-    let xs = voxel_span(lo.x, hi.x, params.dims_x);
-    let ys = voxel_span(lo.y, hi.y, params.dims_y);
-    let x0 = max(xs.x, params.slab_start);
-    let x1 = min(xs.y, params.slab_end);
-    if x0 >= x1 || ys.x >= ys.y {
-        return;
-    }
-    let ny = ys.y - ys.x;
-    let count = (x1 - x0) * ny;
-    for (var i = 0u; i < count; i++) {
-        let x = x0 + i / ny;
-        let y = ys.x + i % ny;
+    let item = items[id];
+    let t0 = corner(item.x, 0u);
+    let t1 = corner(item.x, 1u);
+    let t2 = corner(item.x, 2u);
+    let b = slab_bounds(t0, t1, t2);
+    for (var i = item.y; i < item.z; i++) {
+        let x = b.lo.x + i / b.size.y;
+        let y = b.lo.y + i % b.size.y;
         let hit = column_hit(t0, t1, t2, vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));
         if hit.x != 0.0 {
             let start = ((x - params.slab_start) * params.dims_y + y) * params.dims_z;

@@ -1,41 +1,35 @@
 // Generalized winding number w >= 0.5, as in src/voxel/winding.rs: the signed crossings above
 // each voxel plus the solid angle of a curtain hung from the open boundary.
-// `crossings`: each crossing adds its sign to the highest voxel below it. `classify`: a thread
-// per column sums from the top, then adds the curtain term as the CPU twin does (exact every
-// STRIDE voxels, interpolated between where that is safe), and writes 1 for inside, 0 for
-// outside, in place.
+// `crossings`: each crossing adds its sign to the highest voxel below it; `above` sums them from
+// the top of each column; `classify` adds the curtain term as the CPU twin does (exact every
+// STRIDE voxels, interpolated between where that is safe) and writes 1 for inside.
 
 @group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read> corners: array<f32>;
 @group(0) @binding(2) var<storage, read_write> sums: array<atomic<i32>>;
 // Boundary edges: a.xyz, b.xyz, weight, padding.
 @group(0) @binding(3) var<storage, read> boundary: array<f32>;
+// (triangle, first column, end column, unused), columns numbered y fastest over the bounds.
+@group(0) @binding(4) var<storage, read> items: array<vec4<u32>>;
+// 1 for inside, 0 for outside.
+@group(0) @binding(5) var<storage, read_write> inside: array<u32>;
 
 const PI: f32 = 3.14159265358979;
 
 @compute @workgroup_size(64)
 fn crossings(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let t = flat_group(group) * 64u + lane;
-    if t >= params.triangles {
+    let id = flat_group(group) * 64u + lane;
+    if id >= params.items {
         return;
     }
-    let t0 = corner(t, 0u);
-    let t1 = corner(t, 1u);
-    let t2 = corner(t, 2u);
-    let lo = min(min(t0, t1), t2);
-    let hi = max(max(t0, t1), t2);
-    let xs = voxel_span(lo.x, hi.x, params.dims_x);
-    let ys = voxel_span(lo.y, hi.y, params.dims_y);
-    let x0 = max(xs.x, params.slab_start);
-    let x1 = min(xs.y, params.slab_end);
-    if x0 >= x1 || ys.x >= ys.y {
-        return;
-    }
-    let ny = ys.y - ys.x;
-    let count = (x1 - x0) * ny;
-    for (var i = 0u; i < count; i++) {
-        let x = x0 + i / ny;
-        let y = ys.x + i % ny;
+    let item = items[id];
+    let t0 = corner(item.x, 0u);
+    let t1 = corner(item.x, 1u);
+    let t2 = corner(item.x, 2u);
+    let b = slab_bounds(t0, t1, t2);
+    for (var i = item.y; i < item.z; i++) {
+        let x = b.lo.x + i / b.size.y;
+        let y = b.lo.y + i % b.size.y;
         let hit = column_hit(t0, t1, t2, vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));
         let below = voxels_below(hit.y, params.dims_z);
         if hit.x != 0.0 && below > 0u {
@@ -70,34 +64,50 @@ const STRIDE: u32 = 8u;
 const MAX_STEP: f32 = 0.05;
 const MARGIN: f32 = 0.15;
 
+// A thread per column: the signed crossings above each voxel, summed from the top.
 @compute @workgroup_size(64)
-fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+fn above(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
     let column = flat_group(group) * 64u + lane;
-    let columns = (params.slab_end - params.slab_start) * params.dims_y;
-    if column >= columns {
+    if column >= (params.slab_end - params.slab_start) * params.dims_y {
         return;
     }
+    let start = column * params.dims_z;
+    var sum = 0;
+    for (var z = i32(params.dims_z) - 1; z >= 0; z--) {
+        sum += atomicLoad(&sums[start + u32(z)]);
+        atomicStore(&sums[start + u32(z)], sum);
+    }
+}
+
+// A thread per (column, run of `params.segment` voxels, a multiple of STRIDE): sample the
+// curtain at the run's ends and every STRIDE voxels, interpolate between where safe.
+@compute @workgroup_size(64)
+fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    let id = flat_group(group) * 64u + lane;
+    let nz = params.dims_z;
+    let segments = (nz - 1u + params.segment - 1u) / params.segment;
+    let columns = (params.slab_end - params.slab_start) * params.dims_y;
+    if id >= columns * max(segments, 1u) {
+        return;
+    }
+    let column = id / max(segments, 1u);
     let x = f32(params.slab_start + column / params.dims_y) + 0.5;
     let y = f32(column % params.dims_y) + 0.5;
-    let start = column * params.dims_z;
-    let nz = params.dims_z;
-    // The signed crossings above each voxel.
-    var above = 0;
-    for (var z = i32(nz) - 1; z >= 0; z--) {
-        above += atomicLoad(&sums[start + u32(z)]);
-        atomicStore(&sums[start + u32(z)], above);
-    }
+    let start = column * nz;
     if params.boundary_edges == 0u {
-        for (var z = 0u; z < nz; z++) {
-            atomicStore(&sums[start + z], select(0, 1, atomicLoad(&sums[start + z]) >= 1));
+        if id % max(segments, 1u) == 0u {
+            for (var z = 0u; z < nz; z++) {
+                inside[start + z] = select(0u, 1u, atomicLoad(&sums[start + z]) >= 1);
+            }
         }
         return;
     }
-    var z0 = 0u;
-    var b0 = curtain(vec3<f32>(x, y, 0.5));
-    atomicStore(&sums[start], select(0, 1, f32(atomicLoad(&sums[start])) + b0 >= 0.5));
-    while z0 < nz - 1u {
-        let z1 = min(z0 + STRIDE, nz - 1u);
+    var z0 = (id % max(segments, 1u)) * params.segment;
+    let last = min(z0 + params.segment, nz - 1u);
+    var b0 = curtain(vec3<f32>(x, y, f32(z0) + 0.5));
+    inside[start + z0] = select(0u, 1u, f32(atomicLoad(&sums[start + z0])) + b0 >= 0.5);
+    while z0 < last {
+        let z1 = min(z0 + STRIDE, last);
         let b1 = curtain(vec3<f32>(x, y, f32(z1) + 0.5));
         let gentle = abs(b1 - b0) < MAX_STEP;
         for (var z = z0 + 1u; z < z1; z++) {
@@ -107,9 +117,9 @@ fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_i
             if !(gentle && abs(estimate - 0.5) > MARGIN) {
                 w = count + curtain(vec3<f32>(x, y, f32(z) + 0.5));
             }
-            atomicStore(&sums[start + z], select(0, 1, w >= 0.5));
+            inside[start + z] = select(0u, 1u, w >= 0.5);
         }
-        atomicStore(&sums[start + z1], select(0, 1, f32(atomicLoad(&sums[start + z1])) + b1 >= 0.5));
+        inside[start + z1] = select(0u, 1u, f32(atomicLoad(&sums[start + z1])) + b1 >= 0.5);
         z0 = z1;
         b0 = b1;
     }

@@ -229,8 +229,20 @@ pub fn cook_with_progress(
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, cook.resolution);
     let surface = timings.time("surface", || voxel::surface(&mesh, &grid, gpu.as_deref()))?;
+    let mut gpu_stages = if gpu.is_some() {
+        vec!["surface", "inside"]
+    } else {
+        Vec::new()
+    };
     let solid = timings.time("inside", || {
-        voxel::classify(cook.inside, &mesh, &topology, &grid, gpu.as_deref())
+        match voxel::classify(cook.inside, &mesh, &topology, &grid, gpu.as_deref()) {
+            Err(GpuError::Unsupported(why)) => {
+                notes.push(format!("inside ran on the CPU: {why}"));
+                gpu_stages.retain(|s| *s != "inside");
+                voxel::classify(cook.inside, &mesh, &topology, &grid, None)
+            }
+            result => result,
+        }
     })?;
     let mut inner: Vec<bool> = timings.time("inner", || solid.iter().zip(&surface).map(|(&s, &t)| s && !t).collect());
     // Only open meshes can show their inside.
@@ -418,11 +430,7 @@ pub fn cook_with_progress(
             silhouette_gains: selection.gains,
         },
         device: gpu.as_ref().map_or("cpu".into(), |g| g.name()),
-        gpu_stages: if gpu.is_some() {
-            vec!["surface", "inside"]
-        } else {
-            Vec::new()
-        },
+        gpu_stages,
         timings_ms: timings.timings,
         quality,
         notes,

@@ -111,6 +111,55 @@ fn gpu_stages_match_their_cpu_twins_on_corpus_meshes() {
 }
 
 #[test]
+fn a_triangle_spanning_the_grid_is_split_under_the_drivers_loop_limit() {
+    let Some(gpu) = device() else { return };
+    // llvmpipe stops an invocation's loops after 65535 iterations: this triangle's bounds hold
+    // 4 million voxels, so it only comes out whole if the host splits it into work items.
+    let mesh = Mesh {
+        positions: vec![Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0), Vec3::ONE],
+        triangles: vec![[0, 1, 2]],
+    };
+    let (lo, hi) = mesh.bounds();
+    let grid = Grid::fit(lo, hi, 160);
+    let (g, c) = (
+        gpu::voxel::surface(&gpu, &mesh, &grid).expect("GPU surface"),
+        surface::voxelize(&mesh, &grid),
+    );
+    assert!(c.iter().filter(|&&v| v).count() > 30_000);
+    assert_eq!(differ(&g, &c), 0);
+}
+
+#[test]
+fn a_mesh_with_too_many_open_edges_for_one_thread_classifies_on_the_cpu_and_says_so() {
+    if device().is_none() {
+        return;
+    }
+    // 2000 separate triangles: 6000 boundary edges.
+    let mut mesh = Mesh::default();
+    for i in 0..2000u32 {
+        let o = Vec3::new((i % 50) as f32, (i / 50) as f32, (i % 7) as f32 * 0.1);
+        mesh.positions.extend([o, o + Vec3::X * 0.8, o + Vec3::Y * 0.8]);
+        mesh.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
+    }
+    let settings = occluder_cook::config::load(
+        None,
+        &[
+            ("cook.device".into(), toml::Value::String("gpu".into())),
+            ("cook.resolution".into(), toml::Value::Integer(24)),
+        ],
+    )
+    .unwrap();
+    let cooked = occluder_cook::cook::cook(mesh, Default::default(), 0.0, &settings, false).expect("cooks");
+    let r = &cooked.report;
+    assert_eq!(r.gpu_stages, ["surface"]);
+    assert!(
+        r.notes.iter().any(|n| n.contains("inside ran on the CPU")),
+        "{:?}",
+        r.notes
+    );
+}
+
+#[test]
 fn grids_larger_than_a_binding_are_done_in_slabs() {
     let Some(gpu) = device() else { return };
     // 64 KiB bindings: a 96³ grid of i32 sums needs many slabs, and the triangles several chunks.

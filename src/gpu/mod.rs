@@ -36,6 +36,8 @@ pub enum GpuError {
     OutOfMemory(String),
     #[error("the GPU device was lost: {0}")]
     Lost(String),
+    #[error("not done on the GPU: {0}")]
+    Unsupported(String),
     #[error("GPU error: {0}")]
     Other(String),
 }

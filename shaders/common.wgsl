@@ -18,6 +18,13 @@ struct Params {
     segment: u32,
 }
 
+@group(0) @binding(0) var<storage, read> params: Params;
+// Each triangle's corners in voxel units, nine floats a triangle.
+@group(0) @binding(1) var<storage, read> corners: array<f32>;
+// Work items: (triangle, first unit, end unit, unused); a stage's units are the voxels (z
+// fastest) or the columns (y fastest) of the triangle's bounds in the slab.
+@group(0) @binding(4) var<storage, read> items: array<vec4<u32>>;
+
 const GROUPS_X: u32 = 65535u;
 
 // llvmpipe (and so lavapipe, Mesa 22) silently ends an invocation's loops after 65535
@@ -43,6 +50,27 @@ fn slab_bounds(t0: vec3<f32>, t1: vec3<f32>, t2: vec3<f32>) -> Bounds {
     let x0 = max(xs.x, params.slab_start);
     let x1 = max(min(xs.y, params.slab_end), x0);
     return Bounds(vec3<u32>(x0, ys.x, zs.x), vec3<u32>(x1 - x0, ys.y - ys.x, zs.y - zs.x));
+}
+
+struct Work {
+    valid: bool,
+    t0: vec3<f32>,
+    t1: vec3<f32>,
+    t2: vec3<f32>,
+    bounds: Bounds,
+    first: u32,
+    end: u32,
+}
+
+fn work_item(id: u32) -> Work {
+    if id >= params.items {
+        return Work(false, vec3<f32>(), vec3<f32>(), vec3<f32>(), Bounds(vec3<u32>(), vec3<u32>()), 0u, 0u);
+    }
+    let item = items[id];
+    let t0 = corner(item.x, 0u);
+    let t1 = corner(item.x, 1u);
+    let t2 = corner(item.x, 2u);
+    return Work(true, t0, t1, t2, slab_bounds(t0, t1, t2), item.y, item.z);
 }
 
 fn corner(t: u32, k: u32) -> vec3<f32> {
@@ -107,4 +135,21 @@ fn column_hit(v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, p: vec2<f32>) -> vec3
 // How many voxel centres of a column lie below height z (k + 0.5 < z).
 fn voxels_below(z: f32, n: u32) -> u32 {
     return u32(clamp(i32(ceil(z - 0.5)), 0, i32(n)));
+}
+
+// Where column `i` of a work item meets its triangle: the column's first voxel in the slab's
+// buffer, the voxels below the crossing and its sign.
+struct ColumnCrossing {
+    hit: bool,
+    start: u32,
+    below: u32,
+    sign: i32,
+}
+
+fn column_crossing(w: Work, i: u32) -> ColumnCrossing {
+    let x = w.bounds.lo.x + i / w.bounds.size.y;
+    let y = w.bounds.lo.y + i % w.bounds.size.y;
+    let hit = column_hit(w.t0, w.t1, w.t2, vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));
+    let start = ((x - params.slab_start) * params.dims_y + y) * params.dims_z;
+    return ColumnCrossing(hit.x != 0.0, start, voxels_below(hit.y, params.dims_z), i32(hit.z));
 }

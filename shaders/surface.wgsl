@@ -1,11 +1,7 @@
 // Conservative surface voxelization: a thread per work item (a triangle and a run of the voxels
 // of its bounds), the separating-axis test, atomicOr into a bit grid. Twin: src/voxel/surface.rs.
 
-@group(0) @binding(0) var<storage, read> params: Params;
-@group(0) @binding(1) var<storage, read> corners: array<f32>;
 @group(0) @binding(2) var<storage, read_write> bits: array<atomic<u32>>;
-// (triangle, first voxel, end voxel, unused), voxels numbered z fastest over the bounds.
-@group(0) @binding(4) var<storage, read> items: array<vec4<u32>>;
 
 fn separated(lo: f32, hi: f32, r: f32) -> bool {
     return lo > r || hi < -r;
@@ -47,21 +43,17 @@ fn edge_separates(e: vec3<f32>, a: vec3<f32>, b: vec3<f32>, d: vec3<f32>, h: f32
 
 @compute @workgroup_size(64)
 fn surface(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let id = flat_group(group) * 64u + lane;
-    if id >= params.items {
+    let w = work_item(flat_group(group) * 64u + lane);
+    if !w.valid {
         return;
     }
-    let item = items[id];
-    let t0 = corner(item.x, 0u);
-    let t1 = corner(item.x, 1u);
-    let t2 = corner(item.x, 2u);
-    let b = slab_bounds(t0, t1, t2);
-    for (var i = item.y; i < item.z; i++) {
+    let b = w.bounds;
+    for (var i = w.first; i < w.end; i++) {
         let x = b.lo.x + i / (b.size.y * b.size.z);
         let y = b.lo.y + (i / b.size.z) % b.size.y;
         let z = b.lo.z + i % b.size.z;
         let centre = vec3<f32>(f32(x), f32(y), f32(z)) + vec3<f32>(0.5);
-        if overlaps(centre, params.half, t0, t1, t2) {
+        if overlaps(centre, params.half, w.t0, w.t1, w.t2) {
             let bit = ((x - params.slab_start) * params.dims_y + y) * params.dims_z + z;
             atomicOr(&bits[bit / 32u], 1u << (bit % 32u));
         }

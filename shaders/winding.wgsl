@@ -4,13 +4,9 @@
 // the top of each column; `classify` adds the curtain term as the CPU twin does (exact every
 // STRIDE voxels, interpolated between where that is safe) and writes 1 for inside.
 
-@group(0) @binding(0) var<storage, read> params: Params;
-@group(0) @binding(1) var<storage, read> corners: array<f32>;
 @group(0) @binding(2) var<storage, read_write> sums: array<atomic<i32>>;
 // Boundary edges: a.xyz, b.xyz, weight, padding.
 @group(0) @binding(3) var<storage, read> boundary: array<f32>;
-// (triangle, first column, end column, unused), columns numbered y fastest over the bounds.
-@group(0) @binding(4) var<storage, read> items: array<vec4<u32>>;
 // 1 for inside, 0 for outside.
 @group(0) @binding(5) var<storage, read_write> inside: array<u32>;
 
@@ -18,23 +14,14 @@ const PI: f32 = 3.14159265358979;
 
 @compute @workgroup_size(64)
 fn crossings(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
-    let id = flat_group(group) * 64u + lane;
-    if id >= params.items {
+    let w = work_item(flat_group(group) * 64u + lane);
+    if !w.valid {
         return;
     }
-    let item = items[id];
-    let t0 = corner(item.x, 0u);
-    let t1 = corner(item.x, 1u);
-    let t2 = corner(item.x, 2u);
-    let b = slab_bounds(t0, t1, t2);
-    for (var i = item.y; i < item.z; i++) {
-        let x = b.lo.x + i / b.size.y;
-        let y = b.lo.y + i % b.size.y;
-        let hit = column_hit(t0, t1, t2, vec2<f32>(f32(x) + 0.5, f32(y) + 0.5));
-        let below = voxels_below(hit.y, params.dims_z);
-        if hit.x != 0.0 && below > 0u {
-            let start = ((x - params.slab_start) * params.dims_y + y) * params.dims_z;
-            atomicAdd(&sums[start + below - 1u], i32(hit.z));
+    for (var i = w.first; i < w.end; i++) {
+        let c = column_crossing(w, i);
+        if c.hit && c.below > 0u {
+            atomicAdd(&sums[c.start + c.below - 1u], c.sign);
         }
     }
 }

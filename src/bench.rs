@@ -100,7 +100,11 @@ fn print_row(name: &str, r: &Report) {
     println!(
         "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
         name,
-        if r.gpu_stages.is_empty() { "cpu" } else { "gpu" },
+        match r.gpu_stages.len() {
+            0 => "cpu",
+            2 => "gpu",
+            _ => "mix",
+        },
         r.input.triangles,
         r.occluder.triangles,
         r.occluder.boxes,

@@ -446,13 +446,8 @@ fn run(cli: Cli) -> Result<()> {
             let rows = bench::run(&files, &settings);
             if let Some(r) = rows.iter().find_map(|row| row.report.as_ref()) {
                 println!(
-                    "device: {}; on it: {}",
-                    r.device,
-                    if r.gpu_stages.is_empty() {
-                        "nothing".into()
-                    } else {
-                        r.gpu_stages.join(", ")
-                    }
+                    "device: {} (dev: gpu = surface and inside on it, mix = surface only)",
+                    r.device
                 );
             }
             write(&json, &serde_json::to_vec_pretty(&rows)?)?;

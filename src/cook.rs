@@ -221,11 +221,9 @@ pub fn cook_with_progress(
     let key = timings.time("key", || cache_key(&mesh, cook));
     let topology = timings.time("orient", || orient_closed_components(&mut mesh));
     // Opening the device and building its pipelines happens once a process.
-    let gpu = timings.time("device", || gpu::for_choice(cook.device))?;
-    let mut notes = Vec::new();
-    if gpu.is_none() && cook.device == gpu::DeviceChoice::Auto {
-        notes.push("device=auto found no GPU adapter, so the voxel stages ran on the CPU".to_string());
-    }
+    let placement = timings.time("device", || gpu::for_choice(cook.device))?;
+    let gpu = placement.gpu;
+    let mut notes: Vec<String> = placement.why_cpu.into_iter().collect();
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, cook.resolution);
     let surface = timings.time("surface", || voxel::surface(&mesh, &grid, gpu.as_deref()))?;
@@ -246,7 +244,15 @@ pub fn cook_with_progress(
     })?;
     let mut inner: Vec<bool> = timings.time("inner", || solid.iter().zip(&surface).map(|(&s, &t)| s && !t).collect());
     // Only open meshes can show their inside.
-    let open_views = (!topology.boundary.is_empty()).then(|| timings.time("exposure-render", || OpenViews::new(&mesh)));
+    let open_views = match topology.boundary.is_empty() {
+        true => None,
+        false => {
+            if gpu.is_some() {
+                gpu_stages.push("exposure-render");
+            }
+            Some(timings.time("exposure-render", || OpenViews::new(&mesh, gpu.as_deref()))?)
+        }
+    };
     let exposed_voxels = match &open_views {
         None => 0,
         Some(views) => timings.time("exposure-voxels", || views.remove_exposed(&grid, &mut inner)),

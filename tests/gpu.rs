@@ -5,6 +5,7 @@
 mod common;
 use common::{concat, cuboid, torus};
 use glam::Vec3;
+use occluder_cook::eval::raster::{View, depth_image};
 use occluder_cook::gpu::{self, Gpu, GpuError};
 use occluder_cook::mesh::{Mesh, load_file, topology::orient_closed_components};
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
@@ -221,4 +222,66 @@ fn device_gpu_without_an_adapter_fails_clearly_and_auto_falls_back_to_the_cpu() 
     assert!(report["notes"].to_string().contains("found no GPU adapter"), "{report}");
     assert!(report["occluder"]["triangles"].as_u64().unwrap() > 0);
     std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn gpu_depth_images_match_the_cpu_rasterizer() {
+    let Some(gpu) = device() else { return };
+    let mut meshes = vec![("torus".to_string(), torus(1.0, 0.4, 48, 24))];
+    if let Some(dir) = common::corpus() {
+        for name in ["bunny-holes.obj", "kenney-building-small-a.glb"] {
+            meshes.push((name.into(), load_file(&dir.join(name)).expect("corpus mesh loads").0));
+        }
+    }
+    for (name, mesh) in meshes {
+        let (center, radius) = mesh.bounding_sphere();
+        let views: Vec<View> = occluder_cook::eval::views::fibonacci_sphere(12)
+            .into_iter()
+            .map(|d| View::new(d, center, radius, 256))
+            .collect();
+        let images = gpu::raster::depth_images(&gpu, &mesh, &views).expect("GPU depth images");
+        let tolerance = 2e-4 * radius as f32;
+        let (mut covered, mut differ) = (0, 0);
+        for (view, image) in views.iter().zip(&images) {
+            let twin = depth_image(view, &mesh);
+            for (&g, &c) in image.iter().zip(&twin) {
+                covered += usize::from(c.is_finite());
+                let same = (g.is_infinite() && c.is_infinite()) || (g - c).abs() <= tolerance;
+                differ += usize::from(!same);
+            }
+        }
+        eprintln!(
+            "{name}: {covered} covered pixels; {differ} differ in coverage or by more than {tolerance:.1e} in depth"
+        );
+        // Pixel centres on an edge: the GPU's fill rule and sub-pixel snapping decide them.
+        assert!(
+            differ as f64 <= 0.002 * covered as f64,
+            "{name}: {differ} of {covered} pixels differ"
+        );
+    }
+}
+
+fn cook_on(device: &str, mesh: Mesh) -> occluder_cook::cook::Cooked {
+    let settings =
+        occluder_cook::config::load(None, &[("cook.device".into(), toml::Value::String(device.into()))]).unwrap();
+    occluder_cook::cook::cook(mesh, Default::default(), 0.0, &settings, true).expect("cooks")
+}
+
+#[test]
+fn a_cook_on_the_gpu_gives_the_cpu_occluder_with_no_false_pixels() {
+    if device().is_none() {
+        return;
+    }
+    for (name, mesh) in [
+        ("torus", torus(1.0, 0.45, 48, 24)),
+        ("open box", cuboid(Vec3::splat(-1.0), Vec3::new(1.0, 2.0, 1.0), &[3])),
+    ] {
+        let (g, c) = (cook_on("gpu", mesh.clone()), cook_on("cpu", mesh));
+        assert!(g.report.gpu_stages.contains(&"surface") && c.report.gpu_stages.is_empty());
+        assert_eq!(g.occluder.solid.positions, c.occluder.solid.positions, "{name}");
+        assert_eq!(g.report.occluder.triangles, c.report.occluder.triangles, "{name}");
+        let q = g.report.quality.as_ref().expect("evaluated");
+        assert_eq!(q.false_pixels, 0, "{name}");
+        assert!(q.coverage > 0.5, "{name}: coverage {}", q.coverage);
+    }
 }

@@ -86,6 +86,36 @@ impl View {
         }
     }
 
+    /// For a GPU render of an orthographic view: the matrix from points relative to `origin`
+    /// to clip space, x and y as [`View::project`] has them over [-1, 1], and z its depth over
+    /// the framed diameter (2 × radius), in [0, 1]. None for perspective views.
+    pub fn ortho_clip_matrix(&self, origin: DVec3) -> Option<glam::DMat4> {
+        let Lens::Orthographic { center, radius } = self.lens else {
+            return None;
+        };
+        let c = center - origin;
+        let row = |v: DVec3, scale: f64, offset: f64| {
+            let v = v * scale;
+            glam::DVec4::new(v.x, v.y, v.z, offset - v.dot(c))
+        };
+        let rows = [
+            row(self.right, 1.0 / radius, 0.0),
+            row(self.up, 1.0 / radius, 0.0),
+            row(-self.dir, 0.5 / radius, 0.5),
+            glam::DVec4::W,
+        ];
+        Some(glam::DMat4::from_cols_array_2d(&rows.map(|r| r.to_array())).transpose())
+    }
+
+    /// The depth an orthographic view's GPU depth buffer value stands for (see
+    /// [`View::ortho_clip_matrix`]).
+    pub fn ortho_depth(&self, buffer: f32) -> Option<f32> {
+        match self.lens {
+            Lens::Orthographic { radius, .. } => Some((f64::from(buffer) * 2.0 * radius) as f32),
+            Lens::Perspective { .. } => None,
+        }
+    }
+
     /// The depth tolerance of "nearer than" tests: 1e-4 of the framed diameter.
     pub fn depth_tolerance(&self) -> f64 {
         self.tolerance

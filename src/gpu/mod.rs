@@ -10,6 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
+pub mod raster;
 pub mod voxel;
 
 /// Where the voxel stages run.
@@ -66,15 +67,41 @@ pub fn device() -> Result<Arc<Gpu>, GpuError> {
     Ok(gpu)
 }
 
-/// The device for `choice`: `None` means run on the CPU.
-pub fn for_choice(choice: DeviceChoice) -> Result<Option<Arc<Gpu>>, GpuError> {
+/// Where the stages run for `choice`: the device, or `None` for the CPU with the reason when
+/// `auto` chose it.
+pub struct Placement {
+    pub gpu: Option<Arc<Gpu>>,
+    pub why_cpu: Option<String>,
+}
+
+/// The device for `choice`. `auto` takes a hardware adapter only: on a software one (lavapipe)
+/// the CPU stages measured faster (README, "GPU"), so `gpu` must ask for it.
+pub fn for_choice(choice: DeviceChoice) -> Result<Placement, GpuError> {
+    let cpu = |why: String| Placement {
+        gpu: None,
+        why_cpu: Some(why),
+    };
     match choice {
-        DeviceChoice::Cpu => Ok(None),
-        DeviceChoice::Gpu => device().map(Some),
-        DeviceChoice::Auto => match device() {
-            Ok(gpu) => Ok(Some(gpu)),
-            Err(GpuError::NoAdapter) => Ok(None),
-            Err(e) => Err(e),
+        DeviceChoice::Cpu => Ok(Placement {
+            gpu: None,
+            why_cpu: None,
+        }),
+        DeviceChoice::Gpu => device().map(|gpu| Placement {
+            gpu: Some(gpu),
+            why_cpu: None,
+        }),
+        DeviceChoice::Auto => match best_adapter_info() {
+            None => Ok(cpu(
+                "device=auto found no GPU adapter, so the stages ran on the CPU".into()
+            )),
+            Some(info) if info.device_type == wgpu::DeviceType::Cpu => Ok(cpu(format!(
+                "device=auto found only a software adapter ({}), where the CPU stages are faster; device=gpu uses it",
+                info.name
+            ))),
+            Some(_) => device().map(|gpu| Placement {
+                gpu: Some(gpu),
+                why_cpu: None,
+            }),
         },
     }
 }
@@ -89,13 +116,21 @@ fn rank(kind: wgpu::DeviceType) -> u8 {
     }
 }
 
-fn open() -> Result<Gpu, GpuError> {
+/// The preferred adapter: hardware first, lavapipe last.
+fn best_adapter() -> Option<wgpu::Adapter> {
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
     let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
-    let adapter = adapters
-        .into_iter()
-        .min_by_key(|a| rank(a.get_info().device_type))
-        .ok_or(GpuError::NoAdapter)?;
+    adapters.into_iter().min_by_key(|a| rank(a.get_info().device_type))
+}
+
+/// What [`device`] would open, looked up once a process without opening it.
+pub fn best_adapter_info() -> Option<wgpu::AdapterInfo> {
+    static INFO: std::sync::OnceLock<Option<wgpu::AdapterInfo>> = std::sync::OnceLock::new();
+    INFO.get_or_init(|| best_adapter().map(|a| a.get_info())).clone()
+}
+
+fn open() -> Result<Gpu, GpuError> {
+    let adapter = best_adapter().ok_or(GpuError::NoAdapter)?;
     let info = adapter.get_info();
     let supported = adapter.limits();
     // Ask for what the adapter has, so large grids need fewer slabs.
@@ -263,7 +298,7 @@ impl Gpu {
         self.finish_read(encoder, &staging)
     }
 
-    fn staging(&self, size: u64) -> wgpu::Buffer {
+    pub(crate) fn staging(&self, size: u64) -> wgpu::Buffer {
         self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read-back"),
             size,
@@ -273,7 +308,7 @@ impl Gpu {
     }
 
     /// Submits `encoder`, waits, and maps `staging`.
-    fn finish_read<T: bytemuck::Pod>(
+    pub(crate) fn finish_read<T: bytemuck::Pod>(
         &self,
         encoder: wgpu::CommandEncoder,
         staging: &wgpu::Buffer,

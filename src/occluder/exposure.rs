@@ -10,6 +10,7 @@
 
 use crate::eval::raster::{View, depth_image, rasterize};
 use crate::eval::views::fibonacci_sphere;
+use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use crate::voxel::Grid;
 use glam::DVec3;
@@ -31,19 +32,21 @@ pub struct OpenViews {
 }
 
 impl OpenViews {
-    pub fn new(mesh: &Mesh) -> OpenViews {
+    /// Renders the views' depth images, on `gpu` when given (shaders/raster.wgsl).
+    pub fn new(mesh: &Mesh, gpu: Option<&Gpu>) -> Result<OpenViews, GpuError> {
         let (center, radius) = mesh.bounding_sphere();
         let views: Vec<View> = fibonacci_sphere(DIRECTIONS)
             .into_iter()
             .filter(|d| d.y >= 0.0)
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
-        let depths: Vec<Vec<f32>> = views
-            .par_iter()
-            .map(|v| farthest_nearby(&depth_image(v, mesh), v.pixels))
-            .collect();
+        let images = match gpu {
+            Some(gpu) => crate::gpu::raster::depth_images(gpu, mesh, &views)?,
+            None => views.par_iter().map(|v| depth_image(v, mesh)).collect(),
+        };
+        let depths: Vec<Vec<f32>> = images.par_iter().map(|d| farthest_nearby(d, PIXELS)).collect();
         let tiles = depths.iter().map(|d| farthest_per_tile(d, PIXELS)).collect();
-        OpenViews { views, depths, tiles }
+        Ok(OpenViews { views, depths, tiles })
     }
 
     /// Whether some view sees point `p` in front of the original's surface.

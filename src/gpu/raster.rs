@@ -1,0 +1,166 @@
+//! Host code for shaders/raster.wgsl: depth images of a mesh from orthographic views, one render
+//! pass each, read back in one go. The twin is [`crate::eval::raster::depth_image`].
+
+use super::{Gpu, GpuError};
+use crate::eval::raster::View;
+use crate::mesh::Mesh;
+use wgpu::util::DeviceExt;
+
+const SHADER: &str = include_str!("../../shaders/raster.wgsl");
+const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// The nearest depth per pixel of `mesh` in each view (orthographic, all the same size), rows
+/// from the bottom as [`View::project`] counts them, `f32::INFINITY` where nothing is drawn.
+pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f32>>, GpuError> {
+    let Some(pixels) = views.first().map(|v| v.pixels as u32) else {
+        return Ok(Vec::new());
+    };
+    gpu.run(|gpu| {
+        // Positions relative to the mesh's centre keep f32 precise far from the origin.
+        let (lo, hi) = mesh.bounds();
+        let origin = ((lo + hi) * 0.5).as_dvec3();
+        let positions: Vec<[f32; 3]> = mesh
+            .positions
+            .iter()
+            .map(|p| (p.as_dvec3() - origin).as_vec3().to_array())
+            .collect();
+        let init = |contents: &[u8], usage| {
+            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: None,
+                contents,
+                usage,
+            })
+        };
+        let vertices = init(bytemuck::cast_slice(&positions), wgpu::BufferUsages::VERTEX);
+        let indices = init(bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::INDEX);
+        let pipeline = depth_pipeline(gpu);
+        let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let image_bytes = u64::from(row) * u64::from(pixels);
+        let staging = gpu.staging(image_bytes * views.len() as u64);
+        let size = wgpu::Extent3d {
+            width: pixels,
+            height: pixels,
+            depth_or_array_layers: 1,
+        };
+        let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("depth"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let target_view = target.create_view(&Default::default());
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        for (i, view) in views.iter().enumerate() {
+            let matrix = view
+                .ortho_clip_matrix(origin)
+                .ok_or_else(|| GpuError::Unsupported("GPU depth images are orthographic only".into()))?
+                .as_mat4();
+            let camera = init(
+                bytemuck::cast_slice(&matrix.to_cols_array()),
+                wgpu::BufferUsages::UNIFORM,
+            );
+            let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: None,
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &[wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: camera.as_entire_binding(),
+                }],
+            });
+            {
+                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                    label: Some("depth"),
+                    color_attachments: &[],
+                    depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                        view: &target_view,
+                        depth_ops: Some(wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(1.0),
+                            store: wgpu::StoreOp::Store,
+                        }),
+                        stencil_ops: None,
+                    }),
+                    timestamp_writes: None,
+                    occlusion_query_set: None,
+                    multiview_mask: None,
+                });
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &bind_group, &[]);
+                pass.set_vertex_buffer(0, vertices.slice(..));
+                pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..mesh.triangles.len() as u32 * 3, 0, 0..1);
+            }
+            encoder.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &target,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::DepthOnly,
+                },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &staging,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: image_bytes * i as u64,
+                        bytes_per_row: Some(row),
+                        rows_per_image: None,
+                    },
+                },
+                size,
+            );
+        }
+        let raw: Vec<f32> = gpu.finish_read(encoder, &staging)?;
+        let (per_row, n) = (row as usize / 4, pixels as usize);
+        Ok(views
+            .iter()
+            .zip(raw.chunks(per_row * n))
+            .map(|(view, image)| {
+                // The GPU's first row is the top one.
+                (0..n)
+                    .rev()
+                    .flat_map(|y| image[y * per_row..y * per_row + n].iter())
+                    .map(|&d| match view.ortho_depth(d) {
+                        Some(depth) if d < 1.0 => depth,
+                        _ => f32::INFINITY,
+                    })
+                    .collect()
+            })
+            .collect())
+    })
+}
+
+fn depth_pipeline(gpu: &Gpu) -> wgpu::RenderPipeline {
+    let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("raster"),
+        source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+    });
+    gpu.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("raster"),
+        layout: None,
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("place"),
+            compilation_options: Default::default(),
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: 12,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+            })],
+        },
+        // Both sides, as the twin draws them.
+        primitive: wgpu::PrimitiveState::default(),
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Less),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: Default::default(),
+        fragment: None,
+        multiview_mask: None,
+        cache: None,
+    })
+}

@@ -100,10 +100,10 @@ fn print_row(name: &str, r: &Report) {
     println!(
         "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
         name,
-        match r.gpu_stages.len() {
-            0 => "cpu",
-            2 => "gpu",
-            _ => "mix",
+        match (r.gpu_stages.is_empty(), r.gpu_stages.contains(&"inside")) {
+            (true, _) => "cpu",
+            (false, true) => "gpu",
+            (false, false) => "mix",
         },
         r.input.triangles,
         r.occluder.triangles,

@@ -446,7 +446,7 @@ fn run(cli: Cli) -> Result<()> {
             let rows = bench::run(&files, &settings);
             if let Some(r) = rows.iter().find_map(|row| row.report.as_ref()) {
                 println!(
-                    "device: {} (dev: gpu = surface and inside on it, mix = surface only)",
+                    "device: {} (dev gpu: every GPU stage on it; mix: inside fell back to the CPU)",
                     r.device
                 );
             }

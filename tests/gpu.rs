@@ -285,3 +285,19 @@ fn a_cook_on_the_gpu_gives_the_cpu_occluder_with_no_false_pixels() {
         assert!(q.coverage > 0.5, "{name}: coverage {}", q.coverage);
     }
 }
+
+#[test]
+fn a_stage_that_cannot_fit_the_device_fails_that_call_alone() {
+    let Some(gpu) = device() else { return };
+    let mesh = torus(1.0, 0.4, 24, 12);
+    let (lo, hi) = mesh.bounds();
+    let grid = Grid::fit(lo, hi, 48);
+    // A binding smaller than one layer of the grid: the stage must refuse, not write out of
+    // bounds or crash, and the device must serve the next call.
+    let tiny = gpu.with_max_binding(16);
+    let error = gpu::voxel::surface(&tiny, &mesh, &grid).expect_err("one layer cannot fit");
+    assert!(matches!(error, GpuError::OutOfMemory(_)), "{error}");
+    assert!(error.to_string().contains("storage binding"), "{error}");
+    let next = gpu::voxel::surface(&gpu, &mesh, &grid).expect("the device still works");
+    assert_eq!(next, surface::voxelize(&mesh, &grid));
+}

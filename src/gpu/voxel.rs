@@ -88,16 +88,22 @@ struct Chunk {
     buffer: wgpu::Buffer,
 }
 
-fn triangle_chunks(gpu: &Gpu, mesh: &Mesh, grid: &Grid) -> Vec<Chunk> {
+fn triangle_chunks(gpu: &Gpu, mesh: &Mesh, grid: &Grid) -> Result<Vec<Chunk>, GpuError> {
     let corners = grid.local_corners(mesh);
     let per_chunk = (gpu.max_binding / TRIANGLE_BYTES) as usize;
-    corners
+    if per_chunk == 0 {
+        return Err(GpuError::OutOfMemory(format!(
+            "one triangle exceeds the adapter's largest storage binding ({} bytes)",
+            gpu.max_binding
+        )));
+    }
+    Ok(corners
         .chunks(per_chunk * 9)
         .map(|c| Chunk {
             corners: c.to_vec(),
             buffer: gpu.upload(c),
         })
-        .collect()
+        .collect())
 }
 
 /// The work items of one chunk over one slab: (triangle, first unit, end unit, 0), numbered as
@@ -160,7 +166,7 @@ fn bit_stage(
     gpu.run(|gpu| {
         let [_, ny, nz] = grid.dims;
         let layer = ny * nz;
-        let chunks = triangle_chunks(gpu, mesh, grid);
+        let chunks = triangle_chunks(gpu, mesh, grid)?;
         let mut voxels = vec![false; grid.len()];
         for slab in slabs(gpu, grid, (layer as u64).div_ceil(8))? {
             let count = slab.len() * layer;
@@ -208,7 +214,7 @@ pub fn winding(gpu: &Gpu, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -
     gpu.run(|gpu| {
         let [_, ny, nz] = grid.dims;
         let layer = ny * nz;
-        let chunks = triangle_chunks(gpu, mesh, grid);
+        let chunks = triangle_chunks(gpu, mesh, grid)?;
         let edges: Vec<f32> = boundary
             .iter()
             .flat_map(|e| {

@@ -126,6 +126,9 @@ enum Command {
         pixels: usize,
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Where the ground truth renders (auto: a hardware GPU if there is one).
+        #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+        device: DeviceChoice,
     },
     /// Cook and evaluate every mesh of a corpus; print a table and write JSON.
     Bench {
@@ -406,6 +409,7 @@ fn run(cli: Cli) -> Result<()> {
             cameras,
             pixels,
             json,
+            device,
         } => {
             if !(64..=256).contains(&pixels) || cameras == 0 {
                 bail!("--pixels must be 64 to 256 and --cameras at least 1");
@@ -413,8 +417,16 @@ fn run(cli: Cli) -> Result<()> {
             let level = occluder_cook::level::load(&level)?;
             let (occluder, _) =
                 mesh::load_file(&occluders).with_context(|| format!("occluders {}", occluders.display()))?;
-            let report = occluder_cook::level::cull::cull_eval(&level, &occluder, cameras, pixels)
-                .map_err(anyhow::Error::msg)?;
+            let placement = occluder_cook::gpu::for_choice(device)?;
+            let start = Instant::now();
+            let report =
+                occluder_cook::level::cull::cull_eval(&level, &occluder, cameras, pixels, placement.gpu.as_deref())
+                    .map_err(anyhow::Error::msg)?;
+            println!(
+                "ground truth on {}: {:.0} ms",
+                report.truth_device,
+                start.elapsed().as_secs_f64() * 1e3
+            );
             println!(
                 "{} cameras, {} instances, {} occluder triangles at {} px: culled {:.1}% of the instances in view, wrongly culled {}",
                 report.cameras,

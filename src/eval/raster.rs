@@ -86,6 +86,25 @@ impl View {
         }
     }
 
+    /// For a GPU render of a perspective view: the matrix from points relative to `origin` to
+    /// clip space, x and y as [`View::project`] has them before the divide, w the depth, and
+    /// z = `near`, so that depth is near / w: reversed, with a float buffer's precision where it
+    /// is needed, and compared with "greater". None for orthographic views.
+    pub fn perspective_clip_matrix(&self, origin: DVec3, near: f64) -> Option<glam::DMat4> {
+        let Lens::Perspective { eye } = self.lens else {
+            return None;
+        };
+        let e = eye - origin;
+        let row = |v: DVec3| glam::DVec4::new(v.x, v.y, v.z, -v.dot(e));
+        let rows = [
+            row(self.right),
+            row(self.up),
+            glam::DVec4::new(0.0, 0.0, 0.0, near),
+            row(-self.dir),
+        ];
+        Some(glam::DMat4::from_cols_array_2d(&rows.map(|r| r.to_array())).transpose())
+    }
+
     /// For a GPU render of an orthographic view: the matrix from points relative to `origin`
     /// to clip space, x and y as [`View::project`] has them over [-1, 1], and z its depth over
     /// the framed diameter (2 × radius), in [0, 1]. None for perspective views.

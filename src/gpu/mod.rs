@@ -10,6 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
+pub mod cull;
 pub mod raster;
 pub mod voxel;
 
@@ -296,6 +297,33 @@ impl Gpu {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
         self.finish_read(encoder, &staging)
+    }
+
+    /// Runs `encoder`, then copies a square 4-byte-texel `texture` back, row by row (only the
+    /// set of values matters to callers, so rows stay top first).
+    pub fn read_texture<T: bytemuck::Pod>(
+        &self,
+        mut encoder: wgpu::CommandEncoder,
+        texture: &wgpu::Texture,
+        pixels: u32,
+    ) -> Result<Vec<T>, GpuError> {
+        let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let staging = self.staging(u64::from(row) * u64::from(pixels));
+        encoder.copy_texture_to_buffer(
+            texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &staging,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row),
+                    rows_per_image: None,
+                },
+            },
+            texture.size(),
+        );
+        let padded: Vec<T> = self.finish_read(encoder, &staging)?;
+        let (per_row, used) = (row as usize / 4, pixels as usize);
+        Ok(padded.chunks(per_row).flat_map(|r| r[..used].iter().copied()).collect())
     }
 
     pub(crate) fn staging(&self, size: u64) -> wgpu::Buffer {

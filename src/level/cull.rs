@@ -3,12 +3,15 @@
 //! is tested against it. Ground truth renders the real meshes at 512 pixels: an instance is
 //! visible if any of its pixels survive.
 //!
+//! Ground truth renders on the GPU when given one (shaders/cull.wgsl), else on the CPU.
+//!
 //! Cameras: a seeded random point in the level's bounds (shrunk by a tenth on each side), at a
 //! random height in the lower half, looking in a random horizontal direction with a 90° field
 //! of view.
 
 use super::{Level, MeshRef};
 use crate::eval::raster::{View, rasterize, rasterize_inner};
+use crate::gpu::{Gpu, cull::InstanceScene};
 use crate::mesh::{Mesh, load_file, point_bounds};
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
@@ -30,10 +33,19 @@ pub struct CullReport {
     pub worst_camera: Option<([f64; 3], [f64; 3], usize)>,
     pub occluder_pixels: usize,
     pub occluder_triangles: usize,
+    /// What rendered the ground truth: "cpu", or the GPU adapter's name.
+    pub truth_device: String,
 }
 
-/// Runs `cameras` cameras over `level` with `occluder` at `pixels` wide.
-pub fn cull_eval(level: &Level, occluder: &Mesh, cameras: usize, pixels: usize) -> Result<CullReport, String> {
+/// Runs `cameras` cameras over `level` with `occluder` at `pixels` wide, rendering the ground
+/// truth on `gpu` when given.
+pub fn cull_eval(
+    level: &Level,
+    occluder: &Mesh,
+    cameras: usize,
+    pixels: usize,
+    gpu: Option<&Gpu>,
+) -> Result<CullReport, String> {
     let mut meshes: HashMap<&MeshRef, Mesh> = HashMap::new();
     for (m, _) in &level.instances {
         if meshes.contains_key(m) {
@@ -73,16 +85,47 @@ pub fn cull_eval(level: &Level, occluder: &Mesh, cameras: usize, pixels: usize) 
             (eye, DVec3::new(yaw.cos(), 0.0, yaw.sin()))
         })
         .collect();
+    // Views look along -dir. Their near plane sits far closer than the depth tolerance, so
+    // that a wall next to the eye is not clipped away.
+    let near = tolerance * 1e-3;
+    let truth_view = |(eye, forward): (DVec3, DVec3)| View::perspective(eye, -forward, TRUTH_PIXELS, near);
+    // The GPU renders one camera after another; the CPU renders them in parallel below.
+    let gpu_truth: Option<Vec<Vec<bool>>> = match gpu {
+        Some(gpu) => {
+            let placed: Vec<(Vec<DVec3>, &[[u32; 3]])> = level
+                .instances
+                .iter()
+                .map(|(m, matrix)| {
+                    let mesh = &meshes[m];
+                    let positions = mesh.positions.iter().map(|p| matrix.transform_point3(p.as_dvec3()));
+                    (positions.collect(), &mesh.triangles[..])
+                })
+                .collect();
+            let scene = InstanceScene::new(gpu, &placed, TRUTH_PIXELS as u32);
+            let images: Result<Vec<Vec<bool>>, _> = poses
+                .iter()
+                .map(|&pose| {
+                    let view = truth_view(pose);
+                    let in_view: Vec<usize> = (0..boxes.len())
+                        .filter(|&i| box_on_screen(&view, &boxes[i]).is_some())
+                        .collect();
+                    scene.visible(&view, near, &in_view)
+                })
+                .collect();
+            Some(images.map_err(|e| e.to_string())?)
+        }
+        None => None,
+    };
     let results: Vec<(usize, usize, usize)> = poses
         .par_iter()
-        .map(|&(eye, forward)| {
-            // Views look along -dir. Their near plane sits far closer than the depth tolerance,
-            // so that a wall next to the eye is not clipped away.
-            let near = tolerance * 1e-3;
+        .enumerate()
+        .map(|(c, &(eye, forward))| {
             let coarse = View::perspective(eye, -forward, pixels, near);
             let occluded = occluder_depth(&coarse, occluder);
-            let truth_view = View::perspective(eye, -forward, TRUTH_PIXELS, near);
-            let visible = ground_truth(&truth_view, level, &meshes, &boxes);
+            let visible = match &gpu_truth {
+                Some(images) => images[c].clone(),
+                None => ground_truth(&truth_view((eye, forward)), level, &meshes, &boxes),
+            };
             let (mut in_view, mut culled, mut wrong) = (0, 0, 0);
             for (i, b) in boxes.iter().enumerate() {
                 let Some(test) = box_on_screen(&coarse, b) else {
@@ -116,6 +159,7 @@ pub fn cull_eval(level: &Level, occluder: &Mesh, cameras: usize, pixels: usize) 
         worst_camera: worst,
         occluder_pixels: pixels,
         occluder_triangles: occluder.triangles.len(),
+        truth_device: gpu.map_or("cpu".into(), Gpu::name),
     })
 }
 

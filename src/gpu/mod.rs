@@ -14,13 +14,13 @@ pub mod cull;
 pub mod raster;
 pub mod voxel;
 
-/// Where the voxel stages run.
+/// Where the GPU stages run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum DeviceChoice {
-    /// The GPU when an adapter exists (lavapipe counts), else the CPU, saying so in the report.
+    /// A hardware GPU when there is one, else the CPU, saying why in the report.
     Auto,
-    /// The GPU; fails when there is no adapter.
+    /// Any adapter, lavapipe included; fails when there is none.
     Gpu,
     /// The plain-Rust stages.
     Cpu,

@@ -152,7 +152,11 @@ fn a_mesh_with_too_many_open_edges_for_one_thread_classifies_on_the_cpu_and_says
     .unwrap();
     let cooked = occluder_cook::cook::cook(mesh, Default::default(), 0.0, &settings, false).expect("cooks");
     let r = &cooked.report;
-    assert_eq!(r.gpu_stages, ["surface"]);
+    assert!(
+        r.gpu_stages.contains(&"surface") && !r.gpu_stages.contains(&"inside"),
+        "{:?}",
+        r.gpu_stages
+    );
     assert!(
         r.notes.iter().any(|n| n.contains("inside ran on the CPU")),
         "{:?}",

@@ -20,8 +20,14 @@ struct Server {
 impl Server {
     /// Starts `occluder-cook serve` on a free port over `data`, with `--set` overrides.
     fn start(data: &Path, sets: &[&str]) -> Server {
+        Server::start_with_env(data, sets, &[])
+    }
+
+    /// [`Server::start`] with environment variables set for the server.
+    fn start_with_env(data: &Path, sets: &[&str], env: &[(&str, &str)]) -> Server {
         let mut command = Command::new(env!("CARGO_BIN_EXE_occluder-cook"));
         command
+            .envs(env.iter().copied())
             .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(data)
             .stdout(Stdio::piped())
@@ -605,4 +611,20 @@ fn a_level_is_baked_over_the_api_from_uploads_and_keys() {
     assert_eq!(get(&format!("{base}/healthz"), &[]).status, 200);
     drop(server);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A job that asks for a GPU on a server without one is refused at once; `auto` still cooks.
+#[test]
+fn a_gpu_job_on_a_server_without_a_gpu_is_refused_up_front() {
+    let dir = data_dir("no-gpu");
+    let nowhere = "/nonexistent/icd.json";
+    let server = Server::start_with_env(
+        &dir,
+        &[],
+        &[("VK_ICD_FILENAMES", nowhere), ("VK_DRIVER_FILES", nowhere)],
+    );
+    let cook = format!("{}/v1/cook", server.base);
+    post(&format!("{cook}?device=gpu"), Some("model/obj"), &small_mesh(0)).assert_error(422, "no_gpu");
+    let ok = post(&format!("{cook}?device=auto"), Some("model/obj"), &small_mesh(0));
+    assert_eq!(ok.status, 202, "{}", String::from_utf8_lossy(&ok.body));
 }

@@ -217,10 +217,19 @@ fn job_settings(
         }
         overrides.push(config::parse_assignment(&format!("{key}={value}")).map_err(bad)?);
     }
-    if overrides.is_empty() {
-        return Ok(service.settings.clone());
+    let settings = match overrides.is_empty() {
+        true => service.settings.clone(),
+        false => config::load_over(&service.settings, &overrides).map_err(bad)?,
+    };
+    // A job that asks for a GPU this server lacks would only fail later.
+    if settings.cook.device == crate::gpu::DeviceChoice::Gpu && crate::gpu::best_adapter_info().is_none() {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "no_gpu",
+            "cook.device=gpu, but this server has no GPU adapter: use device=auto or device=cpu".to_string(),
+        ));
     }
-    config::load_over(&service.settings, &overrides).map_err(bad)
+    Ok(settings)
 }
 
 #[utoipa::path(

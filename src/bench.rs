@@ -39,7 +39,7 @@ pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
 /// Cooks and evaluates every file, printing a row as each finishes.
 pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "mesh",
         "dev",
         "tris_in",
@@ -54,6 +54,7 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
         "open_ms",
         "surf_ms",
         "inside_ms",
+        "expo_ms",
         "pieces_ms",
         "cook_ms",
         "eval_ms"
@@ -98,7 +99,7 @@ fn print_row(name: &str, r: &Report) {
     let t = &r.timings_ms;
     let cook_ms = t.total() - t.get("eval");
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
         name,
         match (r.gpu_stages.is_empty(), r.gpu_stages.contains(&"inside")) {
             (true, _) => "cpu",
@@ -117,6 +118,7 @@ fn print_row(name: &str, r: &Report) {
         t.get("device"),
         t.get("surface"),
         t.get("inside"),
+        t.get("exposure-render"),
         ["boxes", "refine", "quads", "patches", "select+merge"]
             .iter()
             .map(|s| t.get(s))

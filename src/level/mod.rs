@@ -391,11 +391,17 @@ pub async fn bake(
             }
         })
         .collect();
-    let groups = batch::cluster(
-        &placed,
+    // An instance whose occluder is empty draws nothing, so it joins no batch.
+    let occluding: Vec<usize> = (0..placed.len()).filter(|&i| placed[i].triangles > 0).collect();
+    let subset: Vec<Placed> = occluding.iter().map(|&i| placed[i]).collect();
+    let groups: Vec<Vec<usize>> = batch::cluster(
+        &subset,
         settings.level.batch_max_triangles,
         settings.level.batch_max_extent,
-    );
+    )
+    .into_iter()
+    .map(|group| group.into_iter().map(|j| occluding[j]).collect())
+    .collect();
     let merged: Vec<(Mesh, Mesh, usize)> = groups
         .par_iter()
         .map(|group| {

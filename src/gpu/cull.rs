@@ -10,7 +10,6 @@ use std::ops::Range;
 use wgpu::util::DeviceExt;
 
 const SHADER: &str = include_str!("../../shaders/cull.wgsl");
-const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const IDS: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 /// What a pixel holds where nothing is drawn.
 const NONE: u32 = u32::MAX;
@@ -92,13 +91,7 @@ impl<'a> InstanceScene<'a> {
             },
             // Both sides, as the twin draws them.
             primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Greater),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
+            depth_stencil: Some(super::depth_test(wgpu::CompareFunction::Greater)),
             multisample: Default::default(),
             fragment: Some(wgpu::FragmentState {
                 module: &module,
@@ -123,7 +116,7 @@ impl<'a> InstanceScene<'a> {
                 pixels,
                 wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             ),
-            depth: render_target(gpu, DEPTH, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT),
+            depth: render_target(gpu, super::DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT),
         }
     }
 
@@ -168,14 +161,7 @@ impl<'a> InstanceScene<'a> {
                             store: wgpu::StoreOp::Store,
                         },
                     })],
-                    depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                        view: &depth,
-                        depth_ops: Some(wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(0.0),
-                            store: wgpu::StoreOp::Discard,
-                        }),
-                        stencil_ops: None,
-                    }),
+                    depth_stencil_attachment: Some(super::depth_attachment(&depth, 0.0, false)),
                     timestamp_writes: None,
                     occlusion_query_set: None,
                     multiview_mask: None,

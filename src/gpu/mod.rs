@@ -170,6 +170,40 @@ fn open() -> Result<Gpu, GpuError> {
     Ok(gpu)
 }
 
+/// The float depth buffer of the render stages.
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// Depth testing with `compare`, writing the depth that passes.
+pub fn depth_test(compare: wgpu::CompareFunction) -> wgpu::DepthStencilState {
+    wgpu::DepthStencilState {
+        format: DEPTH_FORMAT,
+        depth_write_enabled: Some(true),
+        depth_compare: Some(compare),
+        stencil: Default::default(),
+        bias: Default::default(),
+    }
+}
+
+/// A depth attachment cleared to `clear`, kept for a copy when `keep`.
+pub fn depth_attachment(
+    view: &wgpu::TextureView,
+    clear: f32,
+    keep: bool,
+) -> wgpu::RenderPassDepthStencilAttachment<'_> {
+    wgpu::RenderPassDepthStencilAttachment {
+        view,
+        depth_ops: Some(wgpu::Operations {
+            load: wgpu::LoadOp::Clear(clear),
+            store: if keep {
+                wgpu::StoreOp::Store
+            } else {
+                wgpu::StoreOp::Discard
+            },
+        }),
+        stencil_ops: None,
+    }
+}
+
 /// Workgroups are dispatched in a 2D grid of at most this many along x.
 pub const MAX_GROUPS_X: u32 = 65535;
 

@@ -7,7 +7,6 @@ use crate::mesh::Mesh;
 use wgpu::util::DeviceExt;
 
 const SHADER: &str = include_str!("../../shaders/raster.wgsl");
-const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
 /// The nearest depth per pixel of `mesh` in each view (orthographic, all the same size), rows
 /// from the bottom as [`View::project`] counts them, `f32::INFINITY` where nothing is drawn.
@@ -48,7 +47,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: DEPTH,
+            format: super::DEPTH_FORMAT,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
@@ -75,14 +74,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
                 let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                     label: Some("depth"),
                     color_attachments: &[],
-                    depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                        view: &target_view,
-                        depth_ops: Some(wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(1.0),
-                            store: wgpu::StoreOp::Store,
-                        }),
-                        stencil_ops: None,
-                    }),
+                    depth_stencil_attachment: Some(super::depth_attachment(&target_view, 1.0, true)),
                     timestamp_writes: None,
                     occlusion_query_set: None,
                     multiview_mask: None,
@@ -151,13 +143,7 @@ fn depth_pipeline(gpu: &Gpu) -> wgpu::RenderPipeline {
         },
         // Both sides, as the twin draws them.
         primitive: wgpu::PrimitiveState::default(),
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: DEPTH,
-            depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::Less),
-            stencil: Default::default(),
-            bias: Default::default(),
-        }),
+        depth_stencil: Some(super::depth_test(wgpu::CompareFunction::Less)),
         multisample: Default::default(),
         fragment: None,
         multiview_mask: None,

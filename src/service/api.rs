@@ -244,7 +244,7 @@ fn job_settings(
         (status = 400, description = "Bad settings", body = ErrorBody),
         (status = 413, description = "Body over service.max_body_bytes", body = ErrorBody),
         (status = 415, description = "Unknown mesh type", body = ErrorBody),
-        (status = 422, description = "The mesh cannot be read", body = ErrorBody),
+        (status = 422, description = "The mesh cannot be read, or device=gpu on a server without a GPU", body = ErrorBody),
         (status = 429, description = "The queue is full; see Retry-After", body = ErrorBody),
     )
 )]
@@ -344,7 +344,7 @@ fn multipart_error(e: MultipartError) -> ApiError {
         (status = 202, description = "Queued; the job's progress is at status_url", body = Accepted),
         (status = 400, description = "Not multipart, a part named twice or unused, or bad settings", body = ErrorBody),
         (status = 413, description = "Body over service.max_body_bytes", body = ErrorBody),
-        (status = 422, description = "Bad manifest, mesh or transform, or a mesh neither uploaded nor known", body = ErrorBody),
+        (status = 422, description = "Bad manifest, mesh or transform, a mesh neither uploaded nor known, or device=gpu on a server without a GPU", body = ErrorBody),
         (status = 429, description = "The queue is full; see Retry-After", body = ErrorBody),
     )
 )]

@@ -270,7 +270,8 @@ pub fn cook_with_progress(
     } else {
         Vec::new()
     };
-    let field = WindingField::new(&mesh, &topology.boundary);
+    // Refinement and quads both look triangles up through it.
+    let field = timings.time("refine", || WindingField::new(&mesh, &topology.boundary));
     let candidates: Vec<(WorldBox, WorldBox)> = timings.time("refine", || {
         let mut owner = vec![u32::MAX; grid.len()];
         for (id, b) in voxel_boxes.iter().enumerate() {

@@ -84,12 +84,12 @@ enum Units {
 
 /// A chunk of triangles on the device, their corners in voxel units.
 struct Chunk {
-    corners: Vec<f32>,
+    triangles: Vec<[[f32; 3]; 3]>,
     buffer: wgpu::Buffer,
 }
 
 fn triangle_chunks(gpu: &Gpu, mesh: &Mesh, grid: &Grid) -> Result<Vec<Chunk>, GpuError> {
-    let corners = grid.local_corners(mesh);
+    let triangles = grid.local_triangles(mesh);
     let per_chunk = (gpu.max_binding / TRIANGLE_BYTES) as usize;
     if per_chunk == 0 {
         return Err(GpuError::OutOfMemory(format!(
@@ -97,10 +97,10 @@ fn triangle_chunks(gpu: &Gpu, mesh: &Mesh, grid: &Grid) -> Result<Vec<Chunk>, Gp
             gpu.max_binding
         )));
     }
-    Ok(corners
-        .chunks(per_chunk * 9)
+    Ok(triangles
+        .chunks(per_chunk)
         .map(|c| Chunk {
-            corners: c.to_vec(),
+            triangles: c.to_vec(),
             buffer: gpu.upload(c),
         })
         .collect())
@@ -114,9 +114,8 @@ fn work_items(chunk: &Chunk, grid: &Grid, slab: &Range<usize>, units: Units) -> 
         Units::Columns => LOOP_BUDGET / (grid.dims[2].div_ceil(32) + 2),
     };
     let mut items = Vec::new();
-    for (t, c) in chunk.corners.chunks_exact(9).enumerate() {
-        let tri = [[c[0], c[1], c[2]], [c[3], c[4], c[5]], [c[6], c[7], c[8]]];
-        let [xs, ys, zs] = Grid::local_spans(&tri, grid.dims);
+    for (t, tri) in chunk.triangles.iter().enumerate() {
+        let [xs, ys, zs] = Grid::local_spans(tri, grid.dims);
         let x = xs.start.max(slab.start)..xs.end.min(slab.end);
         let count = x.len()
             * ys.len()

@@ -83,17 +83,16 @@ pub struct ColumnCrossings {
 impl ColumnCrossings {
     pub fn build(mesh: &Mesh, grid: &Grid) -> ColumnCrossings {
         let [nx, ny, _] = grid.dims;
-        let corners = grid.local_corners(mesh);
-        let mut hits: Vec<(u32, Crossing<f32>)> = corners
-            .par_chunks_exact(9)
-            .flat_map_iter(|c| {
-                let tri = [[c[0], c[1], c[2]], [c[3], c[4], c[5]], [c[6], c[7], c[8]]];
-                let [rx, ry, _] = Grid::local_spans(&tri, grid.dims);
+        let mut hits: Vec<(u32, Crossing<f32>)> = grid
+            .local_triangles(mesh)
+            .par_iter()
+            .flat_map_iter(|tri| {
+                let [rx, ry, _] = Grid::local_spans(tri, grid.dims);
                 let mut out = Vec::new();
                 for x in rx {
                     for y in ry.clone() {
                         let p = [x as f32 + 0.5, y as f32 + 0.5];
-                        if let Some(c) = column_hit(&tri, p) {
+                        if let Some(c) = column_hit(tri, p) {
                             out.push(((x * ny + y) as u32, c));
                         }
                     }

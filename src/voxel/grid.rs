@@ -87,16 +87,12 @@ impl Grid {
         })
     }
 
-    /// Each triangle's corners in voxel units (voxel (i, j, k) spans [i, i + 1]), nine floats a
-    /// triangle: what the GPU voxel stages and their CPU twins read.
-    pub fn local_corners(&self, mesh: &Mesh) -> Vec<f32> {
-        let mut out = Vec::with_capacity(mesh.triangles.len() * 9);
-        for t in 0..mesh.triangles.len() {
-            for p in mesh.corners(t) {
-                out.extend(self.local(p.as_dvec3()));
-            }
-        }
-        out
+    /// Each triangle's corners in voxel units (voxel (i, j, k) spans [i, i + 1]): what the GPU
+    /// voxel stages and their CPU twins read.
+    pub fn local_triangles(&self, mesh: &Mesh) -> Vec<[[f32; 3]; 3]> {
+        (0..mesh.triangles.len())
+            .map(|t| mesh.corners(t).map(|p| self.local(p.as_dvec3())))
+            .collect()
     }
 
     /// `p` in voxel units, rounded once to f32.

@@ -13,20 +13,19 @@ pub const SLACK: f32 = 1e-4;
 
 /// Which voxels some triangle touches.
 pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
-    let corners = grid.local_corners(mesh);
+    let triangles = grid.local_triangles(mesh);
     let [nx, ny, nz] = grid.dims;
     let half = 0.5 + SLACK;
-    let mut hits: Vec<usize> = corners
-        .par_chunks_exact(9)
-        .flat_map_iter(|c| {
-            let tri = [[c[0], c[1], c[2]], [c[3], c[4], c[5]], [c[6], c[7], c[8]]];
-            let [xs, ys, zs] = Grid::local_spans(&tri, [nx, ny, nz]);
+    let mut hits: Vec<usize> = triangles
+        .par_iter()
+        .flat_map_iter(|tri| {
+            let [xs, ys, zs] = Grid::local_spans(tri, [nx, ny, nz]);
             let mut out = Vec::new();
             for x in xs {
                 for y in ys.clone() {
                     for z in zs.clone() {
                         let centre = [x as f32 + 0.5, y as f32 + 0.5, z as f32 + 0.5];
-                        if triangle_box_overlap(centre, [half; 3], &tri) {
+                        if triangle_box_overlap(centre, [half; 3], tri) {
                             out.push((x * ny + y) * nz + z);
                         }
                     }

@@ -37,6 +37,9 @@ pub struct ServiceSettings {
     pub max_body_bytes: usize,
     pub max_queue: usize,
     pub max_cache_bytes: u64,
+    pub nats_url: String,
+    pub ack_wait_s: f64,
+    pub max_deliver: u32,
 }
 
 impl ServiceSettings {
@@ -229,6 +232,15 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("service.workers", v.workers as f64, 1.0, 256.0)?;
     check("service.max_body_bytes", v.max_body_bytes as f64, 1024.0, 4e9)?;
     check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
+    check("service.ack_wait_s", v.ack_wait_s, 1.0, 86_400.0)?;
+    check("service.max_deliver", v.max_deliver as f64, 1.0, 1000.0)?;
+    if !(v.nats_url.is_empty() || v.nats_url.starts_with("nats://") || v.nats_url.starts_with("tls://")) {
+        return Err(ConfigError::OutOfRange {
+            key: "service.nats_url".into(),
+            value: v.nats_url.clone(),
+            range: "expected empty (sled) or a nats:// or tls:// URL".into(),
+        });
+    }
     if v.listen.parse::<std::net::SocketAddr>().is_err() {
         return Err(ConfigError::OutOfRange {
             key: "service.listen".into(),

@@ -58,9 +58,20 @@ enum Command {
         /// service.data_dir: where jobs, inputs and results are kept.
         #[arg(long)]
         data_dir: Option<PathBuf>,
-        /// Serve the API and run no jobs.
+        /// Serve the API and run no jobs (an API node of a NATS cluster).
         #[arg(long)]
         no_workers: bool,
+        /// service.nats_url: keep jobs and results in NATS JetStream instead of sled.
+        #[arg(long)]
+        nats: Option<String>,
+        #[command(flatten)]
+        settings: SettingsArgs,
+    },
+    /// Run cook workers only, taking jobs from NATS JetStream (a worker node of a cluster).
+    Worker {
+        /// service.nats_url.
+        #[arg(long)]
+        nats: Option<String>,
         #[command(flatten)]
         settings: SettingsArgs,
     },
@@ -295,9 +306,13 @@ fn run(cli: Cli) -> Result<()> {
             listen,
             data_dir,
             no_workers,
+            nats,
             settings,
         } => {
             let mut overrides = settings.overrides()?;
+            if let Some(url) = nats {
+                overrides.push(("service.nats_url".into(), toml::Value::String(url)));
+            }
             if let Some(listen) = listen {
                 overrides.push(("service.listen".into(), toml::Value::String(listen)));
             }
@@ -309,6 +324,14 @@ fn run(cli: Cli) -> Result<()> {
             }
             let settings = config::load(settings.config.as_deref(), &overrides)?;
             tokio::runtime::Runtime::new()?.block_on(service::serve(settings, no_workers))?;
+        }
+        Command::Worker { nats, settings } => {
+            let mut overrides = settings.overrides()?;
+            if let Some(url) = nats {
+                overrides.push(("service.nats_url".into(), toml::Value::String(url)));
+            }
+            let settings = config::load(settings.config.as_deref(), &overrides)?;
+            tokio::runtime::Runtime::new()?.block_on(service::work(settings))?;
         }
         Command::Key { input, settings } => {
             let settings = settings.load()?;

@@ -3,172 +3,11 @@
 //! blob on disk, and a graceful SIGTERM.
 
 mod common;
+use common::http::*;
 use common::{cli, cuboid, torus};
 use glam::Vec3;
-use occluder_cook::mesh::Mesh;
 use serde_json::Value;
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-struct Server {
-    child: Child,
-    base: String,
-}
-
-impl Server {
-    /// Starts `occluder-cook serve` on a free port over `data`, with `--set` overrides.
-    fn start(data: &Path, sets: &[&str]) -> Server {
-        Server::start_with_env(data, sets, &[])
-    }
-
-    /// [`Server::start`] with environment variables set for the server.
-    fn start_with_env(data: &Path, sets: &[&str], env: &[(&str, &str)]) -> Server {
-        let mut command = Command::new(env!("CARGO_BIN_EXE_occluder-cook"));
-        command
-            .envs(env.iter().copied())
-            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
-            .arg(data)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit());
-        for s in sets {
-            command.args(["--set", s]);
-        }
-        let mut child = command.spawn().expect("the server starts");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let addr = line
-            .trim()
-            .strip_prefix("listening on ")
-            .unwrap_or_else(|| panic!("unexpected first line {line:?}"));
-        Server {
-            child,
-            base: format!("http://{addr}"),
-        }
-    }
-
-    fn kill_9(mut self) {
-        self.child.kill().unwrap();
-        self.child.wait().unwrap();
-    }
-
-    /// SIGTERM, and the exit status.
-    fn terminate(mut self) -> std::process::ExitStatus {
-        Command::new("kill")
-            .args(["-TERM", &self.child.id().to_string()])
-            .status()
-            .unwrap();
-        self.child.wait().unwrap()
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-struct Reply {
-    status: u16,
-    headers: ureq::http::HeaderMap,
-    body: Vec<u8>,
-}
-
-impl Reply {
-    fn json(&self) -> Value {
-        serde_json::from_slice(&self.body)
-            .unwrap_or_else(|_| panic!("not JSON: {}", String::from_utf8_lossy(&self.body)))
-    }
-
-    fn header(&self, name: &str) -> Option<&str> {
-        self.headers.get(name).and_then(|v| v.to_str().ok())
-    }
-
-    /// Asserts a JSON error body with this status and code.
-    fn assert_error(&self, status: u16, code: &str) {
-        assert_eq!(self.status, status, "{}", String::from_utf8_lossy(&self.body));
-        assert_eq!(self.json()["error"]["code"], code);
-        assert!(self.json()["error"]["message"].as_str().is_some_and(|m| !m.is_empty()));
-    }
-}
-
-fn agent() -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .timeout_global(Some(Duration::from_secs(60)))
-        .build()
-        .into()
-}
-
-fn reply(result: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> Reply {
-    let mut response = result.expect("the server answers");
-    Reply {
-        status: response.status().as_u16(),
-        headers: response.headers().clone(),
-        body: response.body_mut().with_config().limit(u64::MAX).read_to_vec().unwrap(),
-    }
-}
-
-fn get(url: &str, headers: &[(&str, &str)]) -> Reply {
-    let mut request = agent().get(url);
-    for (k, v) in headers {
-        request = request.header(*k, *v);
-    }
-    reply(request.call())
-}
-
-fn post(url: &str, content_type: Option<&str>, body: &[u8]) -> Reply {
-    let mut request = agent().post(url);
-    if let Some(t) = content_type {
-        request = request.header("Content-Type", t);
-    }
-    reply(request.send(body))
-}
-
-fn obj_text(mesh: &Mesh) -> Vec<u8> {
-    let mut text = String::new();
-    for p in &mesh.positions {
-        text.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
-    }
-    for t in &mesh.triangles {
-        text.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
-    }
-    text.into_bytes()
-}
-
-/// A small distinct mesh for each `i`.
-fn small_mesh(i: usize) -> Vec<u8> {
-    obj_text(&cuboid(Vec3::ZERO, Vec3::new(1.0 + i as f32 * 0.01, 1.0, 0.5), &[]))
-}
-
-fn data_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("occluder-cook-service-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-/// Polls a job until it ends; returns its final JSON.
-fn wait_for(base: &str, job: &str, limit: Duration) -> Value {
-    let start = Instant::now();
-    loop {
-        let status = get(&format!("{base}/v1/jobs/{job}"), &[]);
-        assert_eq!(status.status, 200, "{}", String::from_utf8_lossy(&status.body));
-        let j = status.json();
-        if j["state"] == "done" || j["state"] == "failed" {
-            return j;
-        }
-        assert!(
-            start.elapsed() < limit,
-            "job {job} still {} after {limit:?}",
-            j["state"]
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
 
 #[test]
 fn submit_dedupe_cache_and_headers() {
@@ -239,7 +78,7 @@ fn submit_dedupe_cache_and_headers() {
         "occluder_cook_stage_seconds_bucket",
         "occluder_cache_hits_total",
         "occluder_cache_misses_total",
-        "occluder_jobs{state=\"queued\"}",
+        "occluder_jobs{state=\"running\"}",
         "occluder_queue_depth",
         "occluder_cache_bytes",
     ] {

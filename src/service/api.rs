@@ -126,7 +126,11 @@ impl ApiError {
 
     fn storage(e: impl std::fmt::Display) -> ApiError {
         tracing::error!(error = %e, "storage error");
-        ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "storage", e.to_string())
+        // Usually passing (a NATS server restarting): worth a retry.
+        ApiError {
+            retry_after: Some(1),
+            ..ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "storage", e.to_string())
+        }
     }
 }
 
@@ -651,9 +655,10 @@ async fn occluder_report(State(state): State<AppState>, Path(key): Path<String>)
     }
 }
 
-#[utoipa::path(get, path = "/healthz", responses((status = 200, description = "Serving")))]
-async fn healthz(State(state): State<AppState>) -> Json<serde_json::Value> {
-    Json(serde_json::json!({ "status": "ok", "queue_depth": state.service.queue_depth() }))
+#[utoipa::path(get, path = "/healthz", responses((status = 200, description = "Serving"), (status = 503, body = ErrorBody, description = "The store does not answer")))]
+async fn healthz(State(state): State<AppState>) -> Result<Json<serde_json::Value>, ApiError> {
+    let depth = state.service.queue_depth().await.map_err(ApiError::storage)?;
+    Ok(Json(serde_json::json!({ "status": "ok", "queue_depth": depth })))
 }
 
 #[utoipa::path(get, path = "/metrics", responses((status = 200, description = "Prometheus text format", content_type = "text/plain")))]

@@ -1,10 +1,10 @@
 //! The cook service: an HTTP API ([`api`]) over a durable job queue, a pool of workers that run
 //! the pipeline, and a content-addressed result cache, all kept in a [`store::Store`].
 //!
-//! A job is durable before its submission is answered. On start, queued and running jobs of a
-//! previous run (a crash, a kill -9) are queued again. Identical work is never done twice: a
-//! submission whose key has a result gets it, and one whose key is already queued or running
-//! gets that job.
+//! A job is durable before its submission is answered, and it stays on the store's queue until a
+//! worker finishes it: a crash, a kill -9 or a lost worker node hands it out again. Identical work
+//! is never done twice: a submission whose key has a result gets it, and one whose key is claimed
+//! by a queued or running job gets that job, across every node that shares the store.
 
 pub mod api;
 pub mod client;
@@ -15,23 +15,18 @@ use crate::config::Settings;
 use crate::cook::cook_with_progress;
 use job::{Job, JobError, JobKind, JobState, now_ms};
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-use store::{Input, ResultMeta, Store, StoreResult};
-use tokio::sync::{mpsc, watch};
+use std::time::Duration;
+use store::{Delivery, Input, ResultMeta, Store, StoreResult};
+use tokio::sync::watch;
 
 /// Shared by the API handlers and the workers.
 pub struct Service {
     pub store: Arc<dyn Store>,
     /// The server's settings; a job's query parameters override `cook.*` keys.
     pub settings: Settings,
-    queue: mpsc::UnboundedSender<String>,
-    queued: AtomicUsize,
-    /// Jobs queued or running, by id, with their latest state (progress is not written to the
-    /// store at every stage).
+    /// Jobs this process's workers are running, by id, with their latest progress.
     live: Mutex<HashMap<String, Job>>,
-    /// Queued or running job id by key: identical work joins it.
-    active: Mutex<HashMap<String, String>>,
     cache: Mutex<Lru>,
     /// Keys of uploads seen before, by the BLAKE3 of their bytes, format and settings: a repeat
     /// upload skips parsing.
@@ -101,20 +96,12 @@ pub enum SubmitError {
 }
 
 impl Service {
-    /// Opens the service on `store`, queueing again the jobs a previous run left unfinished.
-    /// Returns it and the receiving end of the queue, for [`run_workers`].
-    pub async fn start(
-        store: Arc<dyn Store>,
-        settings: Settings,
-    ) -> StoreResult<(Arc<Service>, mpsc::UnboundedReceiver<String>)> {
-        let (tx, rx) = mpsc::unbounded_channel();
+    /// Opens the service on `store`.
+    pub async fn start(store: Arc<dyn Store>, settings: Settings) -> StoreResult<Arc<Service>> {
         let service = Arc::new(Service {
             store,
             settings,
-            queue: tx,
-            queued: AtomicUsize::new(0),
             live: Mutex::new(HashMap::new()),
-            active: Mutex::new(HashMap::new()),
             cache: Mutex::new(Lru::default()),
             seen: Mutex::new(HashMap::new()),
         });
@@ -124,40 +111,15 @@ impl Service {
         for (key, meta) in results {
             service.cache.lock().unwrap().touch(&key, meta.bytes);
         }
-        for mut job in service.store.unfinished_jobs().await? {
-            tracing::info!(job = job.id, key = job.key, "queueing again a job left unfinished");
-            job.state = JobState::Queued;
-            job.updated_ms = now_ms();
-            service.store.put_job(&job).await?;
-            service.enqueue(job);
-        }
-        service.update_gauges();
-        Ok((service, rx))
+        service.update_gauges().await;
+        Ok(service)
     }
 
-    fn enqueue(&self, job: Job) {
-        self.active.lock().unwrap().insert(job.key.clone(), job.id.clone());
-        let id = job.id.clone();
-        self.live.lock().unwrap().insert(id.clone(), job);
-        self.queued.fetch_add(1, Ordering::SeqCst);
-        // The receiver lives as long as the workers; after shutdown the job stays in the store.
-        let _ = self.queue.send(id);
-    }
-
-    /// Files a job for `input` under `key`, unless the result exists or the key is in hand.
+    /// Files a job for `input` under `key`, unless the result exists or a job holds the key.
     pub async fn submit(&self, key: &str, input: Input, settings: serde_json::Value) -> Result<Submitted, SubmitError> {
         if let Some(meta) = self.result_meta(key).await? {
             metrics::counter!("occluder_cache_hits_total").increment(1);
             return Ok(Submitted::Cached(meta.job));
-        }
-        if let Some(id) = self.active.lock().unwrap().get(key) {
-            metrics::counter!("occluder_dedup_joins_total").increment(1);
-            return Ok(Submitted::Queued(id.clone()));
-        }
-        metrics::counter!("occluder_cache_misses_total").increment(1);
-        let waiting = self.queued.load(Ordering::SeqCst);
-        if waiting >= self.settings.service.max_queue {
-            return Err(SubmitError::QueueFull(waiting));
         }
         let now = now_ms();
         let kind = if input.format == LEVEL_FORMAT {
@@ -178,29 +140,49 @@ impl Service {
             updated_ms: now,
             attempts: 0,
         };
-        // Claim the key first, so that an identical submission arriving now joins this job.
-        {
-            let mut active = self.active.lock().unwrap();
-            if let Some(id) = active.get(key) {
-                return Ok(Submitted::Queued(id.clone()));
+        // Claim the key first, so that an identical submission arriving now, on any node, joins
+        // this job. A claim left by a job that has ended (its node died) is taken over.
+        loop {
+            let Some(holder) = self.store.claim(key, &job.id).await? else {
+                break;
+            };
+            match self.store.job(&holder).await? {
+                Some(held) if !held.state.is_finished() => {
+                    metrics::counter!("occluder_dedup_joins_total").increment(1);
+                    return Ok(Submitted::Queued(holder));
+                }
+                Some(held) if held.state == JobState::Done && self.result_meta(key).await?.is_some() => {
+                    return Ok(Submitted::Cached(holder));
+                }
+                _ => self.store.release(key, &holder).await?,
             }
-            active.insert(key.to_string(), job.id.clone());
-            self.live.lock().unwrap().insert(job.id.clone(), job.clone());
+        }
+        metrics::counter!("occluder_cache_misses_total").increment(1);
+        let waiting = self.store.queue_depth().await?;
+        if waiting >= self.settings.service.max_queue {
+            self.store.release(key, &job.id).await?;
+            return Err(SubmitError::QueueFull(waiting));
         }
         let stored = async {
             self.store.put_input(key, &input).await?;
-            self.store.put_job(&job).await
+            self.store.put_job(&job).await?;
+            self.store.enqueue(&job.id).await
         }
         .await;
         if let Err(e) = stored {
-            self.active.lock().unwrap().remove(key);
-            self.live.lock().unwrap().remove(&job.id);
+            // The job never reached the queue: it must not hold the key.
+            let mut failed = job.clone();
+            failed.state = JobState::Failed;
+            failed.error = Some(JobError {
+                code: "storage".into(),
+                message: e.to_string(),
+            });
+            let _ = self.store.put_job(&failed).await;
+            let _ = self.store.release(key, &job.id).await;
             return Err(e.into());
         }
-        let id = job.id.clone();
-        self.enqueue(job);
-        self.update_gauges();
-        Ok(Submitted::Queued(id))
+        self.update_gauges().await;
+        Ok(Submitted::Queued(job.id))
     }
 
     /// The key of an upload seen before.
@@ -273,87 +255,154 @@ impl Service {
         }
     }
 
-    pub fn queue_depth(&self) -> usize {
-        self.queued.load(Ordering::SeqCst)
+    pub async fn queue_depth(&self) -> StoreResult<usize> {
+        self.store.queue_depth().await
     }
 
-    fn update_gauges(&self) {
-        let live = self.live.lock().unwrap();
-        for state in [JobState::Queued, JobState::Running] {
-            let n = live.values().filter(|j| j.state == state).count();
-            metrics::gauge!("occluder_jobs", "state" => state.name()).set(n as f64);
+    async fn update_gauges(&self) {
+        let running = self.live.lock().unwrap().len();
+        metrics::gauge!("occluder_jobs", "state" => "running").set(running as f64);
+        if let Ok(depth) = self.store.queue_depth().await {
+            metrics::gauge!("occluder_queue_depth").set(depth as f64);
         }
-        metrics::gauge!("occluder_queue_depth").set(self.queued.load(Ordering::SeqCst) as f64);
         metrics::gauge!("occluder_cache_bytes").set(self.cache.lock().unwrap().bytes as f64);
     }
 
-    fn set_live(&self, job: &Job) {
-        if let Some(slot) = self.live.lock().unwrap().get_mut(&job.id) {
-            *slot = job.clone();
-        }
-    }
-
-    /// Runs one job to its end: done with a stored result, or failed with an error.
-    async fn run(self: &Arc<Self>, id: String) {
-        self.queued.fetch_sub(1, Ordering::SeqCst);
-        let Some(mut job) = self.job(&id).await.ok().flatten() else {
-            tracing::error!(job = id, "queued job not found");
-            return;
-        };
-        job.state = JobState::Running;
-        job.attempts += 1;
-        job.updated_ms = now_ms();
-        self.set_live(&job);
-        self.update_gauges();
-        // Recorded, so that a restart knows this job was interrupted once already.
-        if let Err(e) = self.store.put_job(&job).await {
-            tracing::error!(job = job.id, error = %e, "cannot record the job as running");
-        }
-        let outcome = self.cook(&job).await;
-        let finished = match outcome {
-            Ok((glb, report)) => {
-                let meta = ResultMeta {
-                    job: job.id.clone(),
-                    bytes: (glb.len() + report.len()) as u64,
-                    created_ms: now_ms(),
-                };
-                match self.store.put_result(&job.key, &glb, &report, &meta).await {
-                    Ok(()) => {
-                        self.cache.lock().unwrap().touch(&job.key, meta.bytes);
-                        job.state = JobState::Done;
-                        job.progress = 1.0;
-                        Ok(())
-                    }
-                    Err(e) => Err(JobError {
-                        code: "storage".into(),
-                        message: e.to_string(),
-                    }),
-                }
+    /// Runs one delivered job to its end: done with a stored result, or failed with an error.
+    /// Only then does it leave the queue; if this process dies first, it is handed out again.
+    async fn run(self: &Arc<Self>, delivery: Box<dyn Delivery>) {
+        let delivery: Arc<dyn Delivery> = Arc::from(delivery);
+        let id = delivery.job_id().to_string();
+        let mut job = match self.store.job(&id).await {
+            Ok(Some(job)) => job,
+            Ok(None) => {
+                tracing::error!(job = id, "queued job not found; dropped from the queue");
+                let _ = delivery.finish().await;
+                return;
             }
-            Err(e) => Err(e),
+            Err(e) => {
+                // Left on the queue: it comes back once the store answers.
+                tracing::error!(job = id, error = %e, "cannot read a delivered job");
+                return;
+            }
         };
-        if let Err(e) = finished {
-            tracing::warn!(job = job.id, error = e.message, "job failed");
-            job.state = JobState::Failed;
-            job.error = Some(e);
+        if job.state.is_finished() {
+            // Its worker stopped between finishing it and taking it off the queue.
+            let _ = delivery.finish().await;
+            return;
+        }
+        job.attempts = delivery.deliveries();
+        job.updated_ms = now_ms();
+        let outcome = if job.attempts > self.settings.service.max_deliver {
+            Err(JobError {
+                code: "worker_lost".into(),
+                message: format!(
+                    "the job was started {} times and each time its worker stopped before finishing (a crash, a kill or running out of memory)",
+                    job.attempts - 1
+                ),
+            })
+        } else if let Some(meta) = self.result_meta(&job.key).await.ok().flatten() {
+            // Its worker stored the result and stopped before recording the job done.
+            tracing::info!(job = job.id, made_by = meta.job, "result already stored");
+            Ok(())
+        } else {
+            job.state = JobState::Running;
+            self.live.lock().unwrap().insert(id.clone(), job.clone());
+            self.update_gauges().await;
+            // Recorded, so that a restart knows this job was interrupted once already.
+            if let Err(e) = self.store.put_job(&job).await {
+                tracing::error!(job = job.id, error = %e, "cannot record the job as running");
+            }
+            let (progress, tending) = self.tend(&job, Arc::clone(&delivery));
+            let cooked = self.cook(&job, progress).await;
+            let stored = match cooked {
+                Ok((glb, report)) => {
+                    let meta = ResultMeta {
+                        job: job.id.clone(),
+                        bytes: (glb.len() + report.len()) as u64,
+                        created_ms: now_ms(),
+                    };
+                    let key = job.key.clone();
+                    let put = || self.store.put_result(&key, &glb, &report, &meta);
+                    match persist("store the result", &job.id, put).await {
+                        Ok(()) => {
+                            self.cache.lock().unwrap().touch(&job.key, meta.bytes);
+                            Ok(())
+                        }
+                        Err(()) => {
+                            // The job stays on the queue and runs again once storage is back.
+                            tending.abort();
+                            self.live.lock().unwrap().remove(&id);
+                            return;
+                        }
+                    }
+                }
+                Err(e) => Err(e),
+            };
+            tending.abort();
+            stored
+        };
+        match outcome {
+            Ok(()) => {
+                job.state = JobState::Done;
+                job.progress = 1.0;
+            }
+            Err(e) => {
+                tracing::warn!(job = job.id, error = e.message, "job failed");
+                job.state = JobState::Failed;
+                job.error = Some(e);
+            }
         }
         job.updated_ms = now_ms();
         metrics::counter!("occluder_jobs_finished_total", "state" => job.state.name()).increment(1);
-        if let Err(e) = self.store.put_job(&job).await {
-            tracing::error!(job = job.id, error = %e, "cannot store the finished job");
+        let recorded = persist("record the finished job", &job.id, || self.store.put_job(&job)).await;
+        self.live.lock().unwrap().remove(&id);
+        if recorded.is_ok() {
+            let _ = self.store.release(&job.key, &job.id).await;
+            if let Err(e) = delivery.finish().await {
+                tracing::warn!(job = job.id, error = %e, "cannot take the finished job off the queue; it comes back and ends at once");
+            }
         }
         if job.state == JobState::Done {
             // A finished job's input is only needed to remake a broken result; it may go with
             // its result when the cache is full.
             self.evict().await;
         }
-        self.active.lock().unwrap().remove(&job.key);
-        self.live.lock().unwrap().remove(&job.id);
-        self.update_gauges();
+        self.update_gauges().await;
+    }
+
+    /// While a job runs: writes its progress where other nodes read it, and keeps its delivery
+    /// alive. Returns where the cook sends progress, and the task to abort at the end.
+    fn tend(&self, job: &Job, delivery: Arc<dyn Delivery>) -> (watch::Sender<Job>, tokio::task::JoinHandle<()>) {
+        let (progress, mut updates) = watch::channel(job.clone());
+        let store = Arc::clone(&self.store);
+        let beat = Duration::from_secs_f64(self.settings.service.ack_wait_s / 3.0);
+        let task = tokio::spawn(async move {
+            let mut ticks = tokio::time::interval(beat);
+            loop {
+                tokio::select! {
+                    changed = updates.changed() => {
+                        if changed.is_err() {
+                            break;
+                        }
+                        let job = updates.borrow_and_update().clone();
+                        if let Err(e) = store.put_progress(&job).await {
+                            tracing::debug!(job = job.id, error = %e, "progress not written");
+                        }
+                    }
+                    _ = ticks.tick() => {
+                        if let Err(e) = delivery.keep_alive().await {
+                            tracing::warn!(error = %e, "cannot keep the job alive on the queue");
+                        }
+                    }
+                }
+            }
+        });
+        (progress, task)
     }
 
     /// Ingests and cooks on a blocking thread; a panic fails this job only.
-    async fn cook(self: &Arc<Self>, job: &Job) -> Result<(Vec<u8>, Vec<u8>), JobError> {
+    async fn cook(self: &Arc<Self>, job: &Job, progress: watch::Sender<Job>) -> Result<(Vec<u8>, Vec<u8>), JobError> {
         let fail = |code: &str, message: String| JobError {
             code: code.into(),
             message,
@@ -364,7 +413,7 @@ impl Service {
             Err(e) => return Err(fail("storage", e.to_string())),
         };
         if job.kind == JobKind::Level {
-            return self.bake_level(job, input).await;
+            return self.bake_level(job, input, progress).await;
         }
         let mut settings = self.settings.clone();
         match serde_json::from_value(job.settings.clone()) {
@@ -377,7 +426,7 @@ impl Service {
             let start = std::time::Instant::now();
             let (mesh, stats) = input.load().map_err(|e| fail("bad_mesh", e.to_string()))?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
-            let progress = |stage: &str, done: f64| service.set_progress(&running, stage, done);
+            let progress = |stage: &str, done: f64| service.set_progress(&running, &progress, stage, done);
             let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress)
                 .map_err(|e| fail("gpu", e.to_string()))?;
             for (stage, ms) in &cooked.report.timings_ms.0 {
@@ -393,16 +442,24 @@ impl Service {
         }
     }
 
-    fn set_progress(&self, running: &Job, stage: &str, done: f64) {
+    fn set_progress(&self, running: &Job, progress: &watch::Sender<Job>, stage: &str, done: f64) {
         let mut job = running.clone();
         job.stage = Some(stage.to_string());
         job.progress = done;
-        self.set_live(&job);
+        if let Some(slot) = self.live.lock().unwrap().get_mut(&job.id) {
+            *slot = job.clone();
+        }
+        progress.send_replace(job);
     }
 
     /// Bakes a level whose meshes are all keys: each is found in the store, or cooked from its
     /// kept upload (and filed under its key for the next level). The report holds the batches.
-    async fn bake_level(self: &Arc<Self>, job: &Job, input: store::Input) -> Result<(Vec<u8>, Vec<u8>), JobError> {
+    async fn bake_level(
+        self: &Arc<Self>,
+        job: &Job,
+        input: store::Input,
+        progress: watch::Sender<Job>,
+    ) -> Result<(Vec<u8>, Vec<u8>), JobError> {
         let fail = |code: &str, message: String| JobError {
             code: code.into(),
             message,
@@ -421,7 +478,7 @@ impl Service {
         // The bake is CPU-bound (rayon) between its store calls: it runs on a blocking thread.
         let work = tokio::task::spawn_blocking(move || {
             let progress = |done: usize, total: usize| {
-                service.set_progress(&running, "meshes", 0.95 * done as f64 / total.max(1) as f64)
+                service.set_progress(&running, &progress, "meshes", 0.95 * done as f64 / total.max(1) as f64)
             };
             runtime.block_on(crate::level::bake(&level, &settings, service.store.as_ref(), &progress))
         });
@@ -455,8 +512,8 @@ impl Service {
                     return;
                 }
                 // Results of keys in hand (a recompute under way) stay.
-                let active = self.active.lock().unwrap();
-                cache.oldest(|k| active.contains_key(k))
+                let live = self.live.lock().unwrap();
+                cache.oldest(|k| live.values().any(|job| job.key == k))
             };
             let Some(key) = victim else { return };
             tracing::info!(key, "evicting the least recently used result");
@@ -475,27 +532,52 @@ impl Service {
     }
 }
 
-/// Runs `workers` tasks that take jobs from the queue until `stop` turns true; each finishes the
-/// job in hand first. Jobs still queued stay in the store for the next start.
-pub async fn run_workers(
-    service: Arc<Service>,
-    queue: mpsc::UnboundedReceiver<String>,
-    workers: usize,
-    stop: watch::Receiver<bool>,
-) {
-    let queue = Arc::new(tokio::sync::Mutex::new(queue));
+/// Retries a store write that failed (a NATS server restarting, say) for up to half a minute.
+/// Err once it gives up: the caller leaves the job on the queue, to run again.
+async fn persist<F, Fut>(what: &str, job: &str, mut write: F) -> Result<(), ()>
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = StoreResult<()>>,
+{
+    let mut pause = Duration::from_millis(100);
+    let started = std::time::Instant::now();
+    loop {
+        match write().await {
+            Ok(()) => return Ok(()),
+            Err(e) if started.elapsed() < PERSIST_PATIENCE => {
+                tracing::warn!(job, error = %e, "cannot {what} yet; retrying");
+                tokio::time::sleep(pause).await;
+                pause = (pause * 2).min(Duration::from_secs(2));
+            }
+            Err(e) => {
+                tracing::error!(job, error = %e, "cannot {what}; the job stays queued");
+                return Err(());
+            }
+        }
+    }
+}
+
+/// How long a worker retries a failed store write before it leaves the job on the queue.
+const PERSIST_PATIENCE: Duration = Duration::from_secs(30);
+
+/// How long a worker waits on the queue before it looks at `stop` again.
+const POLL: Duration = Duration::from_secs(1);
+
+/// Runs `workers` tasks that take jobs from the store's queue until `stop` turns true; each
+/// finishes the job in hand first. Jobs still queued stay on the queue.
+pub async fn run_workers(service: Arc<Service>, workers: usize, stop: watch::Receiver<bool>) {
     let tasks: Vec<_> = (0..workers)
         .map(|_| {
-            let (service, queue, mut stop) = (Arc::clone(&service), Arc::clone(&queue), stop.clone());
+            let (service, stop) = (Arc::clone(&service), stop.clone());
             tokio::spawn(async move {
-                loop {
-                    let next = tokio::select! {
-                        id = async { queue.lock().await.recv().await } => id,
-                        _ = stop.wait_for(|s| *s) => None,
-                    };
-                    match next {
-                        Some(id) => service.run(id).await,
-                        None => break,
+                while !*stop.borrow() {
+                    match service.store.next_job(POLL).await {
+                        Ok(Some(delivery)) => service.run(delivery).await,
+                        Ok(None) => {}
+                        Err(e) => {
+                            tracing::warn!(error = %e, "cannot take a job from the queue; retrying");
+                            tokio::time::sleep(POLL).await;
+                        }
                     }
                 }
             })
@@ -503,6 +585,27 @@ pub async fn run_workers(
         .collect();
     for task in tasks {
         let _ = task.await;
+    }
+}
+
+/// The store the settings name: NATS JetStream at `service.nats_url`, or sled under
+/// `service.data_dir`.
+async fn open_store(settings: &Settings) -> anyhow::Result<Arc<dyn Store>> {
+    use anyhow::Context;
+    if !settings.service.nats_url.is_empty() {
+        return Ok(Arc::new(store::nats::NatsStore::open(&settings.service).await?));
+    }
+    let dir = settings.service.data_dir();
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(Arc::new(store::sled::SledStore::open(&dir)?))
+}
+
+/// Resolves on SIGTERM or Ctrl-C.
+async fn terminated() {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).expect("SIGTERM handler");
+    tokio::select! {
+        _ = term.recv() => {}
+        _ = tokio::signal::ctrl_c() => {}
     }
 }
 
@@ -517,14 +620,12 @@ pub async fn serve(settings: Settings, api_only: bool) -> anyhow::Result<()> {
         .expect("buckets are not empty")
         .install_recorder()
         .context("cannot install the metrics recorder")?;
-    let dir = settings.service.data_dir();
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let store: Arc<dyn Store> = Arc::new(store::sled::SledStore::open(&dir)?);
+    let store = open_store(&settings).await?;
     let workers = settings.service.workers;
     let listen = settings.service.listen.clone();
-    let (service, queue) = Service::start(store, settings).await?;
+    let service = Service::start(store, settings).await?;
     let (stop, stopped) = watch::channel(false);
-    let pool = (!api_only).then(|| tokio::spawn(run_workers(Arc::clone(&service), queue, workers, stopped.clone())));
+    let pool = (!api_only).then(|| tokio::spawn(run_workers(Arc::clone(&service), workers, stopped.clone())));
     let app = api::router(api::AppState {
         service: Arc::clone(&service),
         metrics,
@@ -535,12 +636,7 @@ pub async fn serve(settings: Settings, api_only: bool) -> anyhow::Result<()> {
         .with_context(|| format!("cannot listen on {listen}"))?;
     println!("listening on {}", listener.local_addr()?);
     let shutdown = async move {
-        let mut term =
-            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).expect("SIGTERM handler");
-        tokio::select! {
-            _ = term.recv() => {}
-            _ = tokio::signal::ctrl_c() => {}
-        }
+        terminated().await;
         tracing::info!("shutting down: no new connections; running jobs finish, queued ones stay queued");
         let _ = stop.send(true);
     };
@@ -549,5 +645,26 @@ pub async fn serve(settings: Settings, api_only: bool) -> anyhow::Result<()> {
         let _ = pool.await;
     }
     service.store.flush().await?;
+    Ok(())
+}
+
+/// Runs workers only, on the NATS store, until SIGTERM or Ctrl-C. Prints `worker ready` once it
+/// takes jobs.
+pub async fn work(settings: Settings) -> anyhow::Result<()> {
+    if settings.service.nats_url.is_empty() {
+        anyhow::bail!(
+            "a worker node needs NATS (--nats URL or service.nats_url): sled is the store of one process, which `serve` runs with its own workers"
+        );
+    }
+    let store = open_store(&settings).await?;
+    let workers = settings.service.workers;
+    let service = Service::start(store, settings).await?;
+    let (stop, stopped) = watch::channel(false);
+    let pool = tokio::spawn(run_workers(Arc::clone(&service), workers, stopped));
+    println!("worker ready");
+    terminated().await;
+    tracing::info!("shutting down: the jobs in hand finish, queued ones stay queued");
+    let _ = stop.send(true);
+    let _ = pool.await;
     Ok(())
 }

@@ -1,6 +1,8 @@
 //! Synthetic meshes whose true inside is known, and helpers shared by the tests.
 #![allow(dead_code)]
 
+pub mod http;
+
 use glam::Vec3;
 use occluder_cook::config::{self, Settings};
 use occluder_cook::cook::{Cooked, cook};

@@ -1,14 +1,18 @@
-//! Where the service keeps jobs, uploaded inputs and results: one trait, so that the API and the
-//! workers do not know which storage they run on. [`sled::SledStore`] is the embedded one.
+//! Where the service keeps jobs, uploaded inputs and results, and how jobs reach the workers:
+//! one trait, so that the API and the workers do not know which storage they run on.
+//! [`sled::SledStore`] is the embedded one for a single machine; [`nats::NatsStore`] keeps
+//! everything in NATS JetStream, for API and worker nodes spread over many machines.
 //!
 //! Blobs are stored sealed with their BLAKE3 hash; a blob that fails the check on read is
 //! deleted and reported missing, never returned.
 
+pub mod nats;
 pub mod sled;
 
 use super::job::Job;
 use async_trait::async_trait;
 use serde::{Deserialize, Serialize};
+use std::time::Duration;
 
 pub type StoreResult<T> = Result<T, StoreError>;
 
@@ -65,13 +69,40 @@ pub struct ResultMeta {
     pub created_ms: u64,
 }
 
+/// A job handed to a worker. Until [`Delivery::finish`] the queue may hand it out again: after
+/// a restart (sled), or once its worker stops keeping it alive (NATS).
+#[async_trait]
+pub trait Delivery: Send + Sync {
+    fn job_id(&self) -> &str;
+    /// Times the queue has handed this job out, this time included.
+    fn deliveries(&self) -> u32;
+    /// Tells the queue that the job is still being worked on.
+    async fn keep_alive(&self) -> StoreResult<()>;
+    /// Takes the job off the queue for good.
+    async fn finish(&self) -> StoreResult<()>;
+}
+
 #[async_trait]
 pub trait Store: Send + Sync + 'static {
     /// Writes a job record and makes it durable before returning.
     async fn put_job(&self, job: &Job) -> StoreResult<()>;
+    /// Writes a running job's progress where other nodes read it. The embedded store keeps
+    /// progress in the process's memory only, and does nothing here.
+    async fn put_progress(&self, _job: &Job) -> StoreResult<()> {
+        Ok(())
+    }
     async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
-    /// Jobs that are queued or running: what a restart must run again.
-    async fn unfinished_jobs(&self) -> StoreResult<Vec<Job>>;
+
+    /// Claims `key` for the job `id`, unless a job holds it already: then that job's id.
+    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<String>>;
+    /// Lets go of `key` if the job `id` holds it.
+    async fn release(&self, key: &str, id: &str) -> StoreResult<()>;
+    /// Puts a stored job on the work queue.
+    async fn enqueue(&self, id: &str) -> StoreResult<()>;
+    /// The next job for a worker, or None when none came within `wait`.
+    async fn next_job(&self, wait: Duration) -> StoreResult<Option<Box<dyn Delivery>>>;
+    /// Jobs on the queue: waiting, or handed out and not finished.
+    async fn queue_depth(&self) -> StoreResult<usize>;
 
     async fn put_input(&self, key: &str, input: &Input) -> StoreResult<()>;
     async fn input(&self, key: &str) -> StoreResult<Option<Input>>;

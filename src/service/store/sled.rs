@@ -1,9 +1,14 @@
-//! The embedded store: one sled database with a tree per kind of record.
+//! The embedded store: one sled database with a tree per kind of record, and the work queue in
+//! memory, rebuilt on open from the jobs a previous run left unfinished.
 
-use super::{Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
-use crate::service::job::Job;
+use super::{Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use crate::service::job::{Job, JobState, now_ms};
 use async_trait::async_trait;
+use std::collections::{HashMap, VecDeque};
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 pub struct SledStore {
     db: sled::Db,
@@ -12,6 +17,52 @@ pub struct SledStore {
     glbs: sled::Tree,
     reports: sled::Tree,
     metas: sled::Tree,
+    queue: Arc<Queue>,
+}
+
+/// Job ids waiting for a worker, with the times each was handed out before; the key of each
+/// job queued or running, by key; and the jobs queued or in a worker's hands.
+#[derive(Default)]
+struct Queue {
+    waiting: Mutex<VecDeque<(String, u32)>>,
+    ready: tokio::sync::Notify,
+    claims: Mutex<HashMap<String, String>>,
+    unfinished: AtomicUsize,
+}
+
+impl Queue {
+    fn push(&self, id: String, delivered_before: u32) {
+        self.unfinished.fetch_add(1, Ordering::SeqCst);
+        self.waiting.lock().unwrap().push_back((id, delivered_before));
+        self.ready.notify_one();
+    }
+}
+
+struct SledDelivery {
+    id: String,
+    deliveries: u32,
+    queue: Arc<Queue>,
+}
+
+#[async_trait]
+impl Delivery for SledDelivery {
+    fn job_id(&self) -> &str {
+        &self.id
+    }
+
+    fn deliveries(&self) -> u32 {
+        self.deliveries
+    }
+
+    /// A job in this process's hands stays there until it finishes or the process ends.
+    async fn keep_alive(&self) -> StoreResult<()> {
+        Ok(())
+    }
+
+    async fn finish(&self) -> StoreResult<()> {
+        self.queue.unfinished.fetch_sub(1, Ordering::SeqCst);
+        Ok(())
+    }
 }
 
 fn backend(e: impl std::fmt::Display) -> StoreError {
@@ -22,14 +73,46 @@ impl SledStore {
     pub fn open(dir: &Path) -> StoreResult<SledStore> {
         let db = sled::open(dir).map_err(|e| StoreError::Backend(format!("cannot open {}: {e}", dir.display())))?;
         let tree = |name: &str| db.open_tree(name).map_err(backend);
-        Ok(SledStore {
+        let store = SledStore {
             jobs: tree("jobs")?,
             inputs: tree("inputs")?,
             glbs: tree("glbs")?,
             reports: tree("reports")?,
             metas: tree("result_meta")?,
             db,
-        })
+            queue: Arc::default(),
+        };
+        store.queue_unfinished()?;
+        Ok(store)
+    }
+
+    /// Queues again, oldest first, the jobs that a previous run (a crash, a kill -9) left queued
+    /// or running.
+    fn queue_unfinished(&self) -> StoreResult<()> {
+        let mut unfinished = Vec::new();
+        for entry in self.jobs.iter() {
+            let (_, value) = entry.map_err(backend)?;
+            let job: Job = decode(&value)?;
+            if !job.state.is_finished() {
+                unfinished.push(job);
+            }
+        }
+        unfinished.sort_by_key(|j| j.created_ms);
+        for mut job in unfinished {
+            tracing::info!(job = job.id, key = job.key, "queueing again a job left unfinished");
+            job.state = JobState::Queued;
+            job.updated_ms = now_ms();
+            let bytes = serde_json::to_vec(&job).expect("jobs serialize");
+            self.jobs.insert(job.id.as_bytes(), bytes).map_err(backend)?;
+            self.queue
+                .claims
+                .lock()
+                .unwrap()
+                .insert(job.key.clone(), job.id.clone());
+            self.queue.push(job.id, job.attempts);
+        }
+        self.db.flush().map_err(backend)?;
+        Ok(())
     }
 
     /// Makes every write so far durable. sled 0.34's `flush_async` can deadlock when called
@@ -77,17 +160,49 @@ impl Store for SledStore {
         self.jobs.get(id).map_err(backend)?.map(|v| decode(&v)).transpose()
     }
 
-    async fn unfinished_jobs(&self) -> StoreResult<Vec<Job>> {
-        let mut out = Vec::new();
-        for entry in self.jobs.iter() {
-            let (_, value) = entry.map_err(backend)?;
-            let job: Job = decode(&value)?;
-            if !job.state.is_finished() {
-                out.push(job);
+    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<String>> {
+        let mut claims = self.queue.claims.lock().unwrap();
+        if let Some(holder) = claims.get(key) {
+            return Ok(Some(holder.clone()));
+        }
+        claims.insert(key.to_string(), id.to_string());
+        Ok(None)
+    }
+
+    async fn release(&self, key: &str, id: &str) -> StoreResult<()> {
+        let mut claims = self.queue.claims.lock().unwrap();
+        if claims.get(key).is_some_and(|holder| holder == id) {
+            claims.remove(key);
+        }
+        Ok(())
+    }
+
+    async fn enqueue(&self, id: &str) -> StoreResult<()> {
+        self.queue.push(id.to_string(), 0);
+        Ok(())
+    }
+
+    async fn next_job(&self, wait: Duration) -> StoreResult<Option<Box<dyn Delivery>>> {
+        let deadline = tokio::time::Instant::now() + wait;
+        loop {
+            if let Some((id, before)) = self.queue.waiting.lock().unwrap().pop_front() {
+                return Ok(Some(Box::new(SledDelivery {
+                    id,
+                    deliveries: before + 1,
+                    queue: Arc::clone(&self.queue),
+                })));
+            }
+            if tokio::time::timeout_at(deadline, self.queue.ready.notified())
+                .await
+                .is_err()
+            {
+                return Ok(None);
             }
         }
-        out.sort_by_key(|j| j.created_ms);
-        Ok(out)
+    }
+
+    async fn queue_depth(&self) -> StoreResult<usize> {
+        Ok(self.queue.unfinished.load(Ordering::SeqCst))
     }
 
     async fn put_input(&self, key: &str, input: &Input) -> StoreResult<()> {

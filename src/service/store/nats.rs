@@ -1,0 +1,360 @@
+//! The distributed store: NATS JetStream. Jobs go on a work-queue stream that a durable pull
+//! consumer hands to the workers; job records and key claims live in KV buckets; inputs and
+//! results live in an object store under their BLAKE3 keys, sealed as in the sled store.
+//!
+//! A worker keeps its job alive with in-progress acks. One that dies stops acking, and after
+//! `ack_wait` the job is handed to another worker. The consumer hands a job out at most
+//! `max_deliver + 1` times: the last time only to mark it failed, so that a mesh that keeps
+//! killing workers ends as a failed job instead of vanishing.
+
+use super::{Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use crate::config::ServiceSettings;
+use crate::service::job::Job;
+use async_nats::jetstream::{self, AckKind, consumer, kv, object_store, stream};
+use async_trait::async_trait;
+use futures_util::StreamExt;
+use std::time::{Duration, Instant};
+use tokio::io::AsyncReadExt;
+
+const QUEUE_STREAM: &str = "OCCLUDER_JOBS";
+const QUEUE_SUBJECT: &str = "occluder.jobs";
+const CONSUMER: &str = "occluder-workers";
+const JOBS_BUCKET: &str = "occluder-jobs";
+const CLAIMS_BUCKET: &str = "occluder-claims";
+const RESULTS_BUCKET: &str = "occluder-results";
+const BLOBS_BUCKET: &str = "occluder-blobs";
+/// How long a node waits for NATS at start (it may come up after the node).
+const CONNECT_PATIENCE: Duration = Duration::from_secs(30);
+
+pub struct NatsStore {
+    jetstream: jetstream::Context,
+    queue: stream::Stream,
+    consumer: consumer::PullConsumer,
+    jobs: kv::Store,
+    claims: kv::Store,
+    results: kv::Store,
+    blobs: object_store::ObjectStore,
+}
+
+fn backend(e: impl std::fmt::Display) -> StoreError {
+    StoreError::Backend(format!("nats: {e}"))
+}
+
+fn decode<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> StoreResult<T> {
+    serde_json::from_slice(bytes).map_err(|e| StoreError::Decode(e.to_string()))
+}
+
+impl NatsStore {
+    /// Connects to `settings.nats_url` and creates the stream, consumer and buckets where they
+    /// do not exist yet (every node does this; it is idempotent).
+    pub async fn open(settings: &ServiceSettings) -> StoreResult<NatsStore> {
+        let url = &settings.nats_url;
+        let started = Instant::now();
+        let client = loop {
+            match async_nats::connect(url.as_str()).await {
+                Ok(client) => break client,
+                Err(e) if started.elapsed() < CONNECT_PATIENCE => {
+                    tracing::warn!(url, error = %e, "NATS not reachable yet; retrying");
+                    tokio::time::sleep(Duration::from_millis(500)).await;
+                }
+                Err(e) => return Err(StoreError::Backend(format!("cannot reach NATS at {url}: {e}"))),
+            }
+        };
+        let jetstream = jetstream::new(client);
+        let queue = jetstream
+            .get_or_create_stream(stream::Config {
+                name: QUEUE_STREAM.into(),
+                subjects: vec![QUEUE_SUBJECT.into()],
+                retention: stream::RetentionPolicy::WorkQueue,
+                storage: stream::StorageType::File,
+                // A job enqueued twice within this window (a retried publish) is queued once.
+                duplicate_window: Duration::from_secs(120),
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| backend(format!("cannot open the stream {QUEUE_STREAM}: {e}")))?;
+        let consumer = queue
+            .get_or_create_consumer(
+                CONSUMER,
+                consumer::pull::Config {
+                    durable_name: Some(CONSUMER.into()),
+                    ack_policy: consumer::AckPolicy::Explicit,
+                    ack_wait: Duration::from_secs_f64(settings.ack_wait_s),
+                    max_deliver: settings.max_deliver as i64 + 1,
+                    ..Default::default()
+                },
+            )
+            .await
+            .map_err(|e| backend(format!("cannot open the consumer {CONSUMER}: {e}")))?;
+        let jobs = open_bucket(&jetstream, JOBS_BUCKET).await?;
+        let claims = open_bucket(&jetstream, CLAIMS_BUCKET).await?;
+        let results = open_bucket(&jetstream, RESULTS_BUCKET).await?;
+        let blobs = jetstream
+            .create_object_store(object_store::Config {
+                bucket: BLOBS_BUCKET.into(),
+                storage: stream::StorageType::File,
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| backend(format!("cannot open the object store {BLOBS_BUCKET}: {e}")))?;
+        Ok(NatsStore {
+            jetstream,
+            queue,
+            consumer,
+            jobs,
+            claims,
+            results,
+            blobs,
+        })
+    }
+
+    async fn put_blob(&self, name: &str, payload: &[u8]) -> StoreResult<()> {
+        let sealed = seal(payload);
+        self.blobs.put(name, &mut sealed.as_slice()).await.map_err(backend)?;
+        Ok(())
+    }
+
+    /// The sealed blob `name`; a broken seal deletes it and reads as missing.
+    async fn blob(&self, name: &str) -> StoreResult<Option<Vec<u8>>> {
+        let mut object = match self.blobs.get(name).await {
+            Ok(object) => object,
+            Err(e) if e.kind() == object_store::GetErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(backend(e)),
+        };
+        let mut sealed = Vec::new();
+        object.read_to_end(&mut sealed).await.map_err(backend)?;
+        match unseal(&sealed) {
+            Some(payload) => Ok(Some(payload.to_vec())),
+            None => {
+                tracing::warn!(name, "blob failed its BLAKE3 check; deleted");
+                metrics::counter!("occluder_corrupt_blobs_total").increment(1);
+                self.delete_blob(name).await?;
+                Ok(None)
+            }
+        }
+    }
+
+    async fn delete_blob(&self, name: &str) -> StoreResult<()> {
+        match self.blobs.delete(name).await {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == object_store::DeleteErrorKind::NotFound => Ok(()),
+            Err(e) => Err(backend(e)),
+        }
+    }
+
+    async fn record<T: serde::de::DeserializeOwned>(bucket: &kv::Store, key: &str) -> StoreResult<Option<T>> {
+        bucket.get(key).await.map_err(backend)?.map(|v| decode(&v)).transpose()
+    }
+}
+
+/// A KV bucket keeping one revision per key. Its stream is made here, as a KV bucket's stream is
+/// made: async-nats's `create_key_value` first reads account fields that nats-server 2.9 (the
+/// Debian 12 package) does not send.
+async fn open_bucket(jetstream: &jetstream::Context, name: &str) -> StoreResult<kv::Store> {
+    let cannot = |e: &dyn std::fmt::Display| backend(format!("cannot open the bucket {name}: {e}"));
+    jetstream
+        .get_or_create_stream(stream::Config {
+            name: format!("KV_{name}"),
+            subjects: vec![format!("$KV.{name}.>")],
+            max_messages_per_subject: 1,
+            storage: stream::StorageType::File,
+            allow_rollup: true,
+            deny_delete: true,
+            allow_direct: true,
+            discard: stream::DiscardPolicy::New,
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| cannot(&e))?;
+    jetstream.get_key_value(name).await.map_err(|e| cannot(&e))
+}
+
+fn input_blob(key: &str) -> String {
+    format!("input/{key}")
+}
+
+fn glb_blob(key: &str) -> String {
+    format!("glb/{key}")
+}
+
+fn report_blob(key: &str) -> String {
+    format!("report/{key}")
+}
+
+struct NatsDelivery {
+    id: String,
+    deliveries: u32,
+    message: jetstream::Message,
+}
+
+#[async_trait]
+impl Delivery for NatsDelivery {
+    fn job_id(&self) -> &str {
+        &self.id
+    }
+
+    fn deliveries(&self) -> u32 {
+        self.deliveries
+    }
+
+    async fn keep_alive(&self) -> StoreResult<()> {
+        self.message.ack_with(AckKind::Progress).await.map_err(backend)
+    }
+
+    async fn finish(&self) -> StoreResult<()> {
+        self.message.double_ack().await.map_err(backend)
+    }
+}
+
+#[async_trait]
+impl Store for NatsStore {
+    async fn put_job(&self, job: &Job) -> StoreResult<()> {
+        let bytes = serde_json::to_vec(job).expect("jobs serialize");
+        self.jobs.put(&job.id, bytes.into()).await.map_err(backend)?;
+        Ok(())
+    }
+
+    async fn put_progress(&self, job: &Job) -> StoreResult<()> {
+        self.put_job(job).await
+    }
+
+    async fn job(&self, id: &str) -> StoreResult<Option<Job>> {
+        Self::record(&self.jobs, id).await
+    }
+
+    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<String>> {
+        // A claim can be released between a failed create and the read: try again then.
+        for _ in 0..8 {
+            match self.claims.create(key, id.to_string().into()).await {
+                Ok(_) => return Ok(None),
+                Err(e) if e.kind() == kv::CreateErrorKind::AlreadyExists => {
+                    if let Some(holder) = self.claims.get(key).await.map_err(backend)? {
+                        return Ok(Some(String::from_utf8_lossy(&holder).into_owned()));
+                    }
+                }
+                Err(e) => return Err(backend(e)),
+            }
+        }
+        Err(StoreError::Backend(format!("the claim on {key} keeps changing hands")))
+    }
+
+    async fn release(&self, key: &str, id: &str) -> StoreResult<()> {
+        let Some(entry) = self.claims.entry(key).await.map_err(backend)? else {
+            return Ok(());
+        };
+        if entry.operation == kv::Operation::Put && entry.value.as_ref() == id.as_bytes() {
+            // Only this revision: a claim taken since by another job stays.
+            if let Err(e) = self.claims.delete_expect_revision(key, Some(entry.revision)).await {
+                tracing::debug!(key, error = %e, "claim changed hands before its release");
+            }
+        }
+        Ok(())
+    }
+
+    async fn enqueue(&self, id: &str) -> StoreResult<()> {
+        let publish = jetstream::message::PublishMessage::build()
+            .payload(id.to_string().into())
+            .message_id(id);
+        self.jetstream
+            .send_publish(QUEUE_SUBJECT, publish)
+            .await
+            .map_err(backend)?
+            .await
+            .map_err(backend)?;
+        Ok(())
+    }
+
+    async fn next_job(&self, wait: Duration) -> StoreResult<Option<Box<dyn Delivery>>> {
+        let mut batch = self
+            .consumer
+            .fetch()
+            .max_messages(1)
+            .expires(wait)
+            .messages()
+            .await
+            .map_err(backend)?;
+        let Some(message) = batch.next().await else {
+            return Ok(None);
+        };
+        let message = message.map_err(backend)?;
+        let deliveries = message.info().map_err(backend)?.delivered.max(1) as u32;
+        let id = String::from_utf8_lossy(&message.payload).into_owned();
+        Ok(Some(Box::new(NatsDelivery {
+            id,
+            deliveries,
+            message,
+        })))
+    }
+
+    async fn queue_depth(&self) -> StoreResult<usize> {
+        let info = self.queue.get_info().await.map_err(backend)?;
+        Ok(info.state.messages as usize)
+    }
+
+    async fn put_input(&self, key: &str, input: &Input) -> StoreResult<()> {
+        self.put_blob(&input_blob(key), &input.encode()).await
+    }
+
+    async fn input(&self, key: &str) -> StoreResult<Option<Input>> {
+        let payload = self.blob(&input_blob(key)).await?;
+        payload
+            .map(|p| Input::decode(&p).ok_or_else(|| StoreError::Decode(format!("input {key}"))))
+            .transpose()
+    }
+
+    async fn delete_input(&self, key: &str) -> StoreResult<()> {
+        self.delete_blob(&input_blob(key)).await
+    }
+
+    async fn put_result(&self, key: &str, glb: &[u8], report: &[u8], meta: &ResultMeta) -> StoreResult<()> {
+        self.put_blob(&glb_blob(key), glb).await?;
+        self.put_blob(&report_blob(key), report).await?;
+        // The meta goes last: a result is there once its meta is.
+        let bytes = serde_json::to_vec(meta).expect("metas serialize");
+        self.results.put(key, bytes.into()).await.map_err(backend)?;
+        Ok(())
+    }
+
+    async fn result_glb(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.blob(&glb_blob(key)).await
+    }
+
+    async fn result_report(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.blob(&report_blob(key)).await
+    }
+
+    async fn result_meta(&self, key: &str) -> StoreResult<Option<ResultMeta>> {
+        Self::record(&self.results, key).await
+    }
+
+    async fn delete_result(&self, key: &str) -> StoreResult<()> {
+        self.results.delete(key).await.map_err(backend)?;
+        self.delete_blob(&glb_blob(key)).await?;
+        self.delete_blob(&report_blob(key)).await
+    }
+
+    async fn results(&self) -> StoreResult<Vec<(String, ResultMeta)>> {
+        let keys: Vec<String> = self
+            .results
+            .keys()
+            .await
+            .map_err(backend)?
+            .collect::<Vec<_>>()
+            .await
+            .into_iter()
+            .collect::<Result<_, _>>()
+            .map_err(backend)?;
+        let mut out = Vec::with_capacity(keys.len());
+        for key in keys {
+            if let Some(meta) = self.result_meta(&key).await? {
+                out.push((key, meta));
+            }
+        }
+        Ok(out)
+    }
+
+    /// JetStream acknowledges each write once it is stored: nothing is left to flush.
+    async fn flush(&self) -> StoreResult<()> {
+        Ok(())
+    }
+}

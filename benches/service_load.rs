@@ -1,15 +1,19 @@
-//! Load on the real server binary over loopback (run with `cargo bench --bench service_load`):
+//! Load on the real server binary over loopback (run with `cargo bench --bench service_load`),
+//! in each deployment mode side by side, one after another in one run:
 //!
-//! 1. 200 distinct small cook jobs submitted at once from 64 connections: time until all are
-//!    done, errors, lost jobs;
-//! 2. a duplicate submission of a cached mesh, 1,000 times over 64 connections: latency;
-//! 3. cached `GET /v1/occluders/{key}`, 1,000 times over 64 connections: latency and rate; and,
-//!    where `wrk` is installed, 10 s of it with 64 connections for the sustained rate.
+//! - `sled`: one `serve` process with `service.workers` 1, then 2;
+//! - `nats`: a `nats-server -js`, one API node (`serve --no-workers`) and 1, then 2, worker
+//!   processes (`worker`, one job at a time each).
 //!
-//! The load generator runs on the same machine as the server, as a studio's CI box would.
+//! In each mode: 200 distinct small cook jobs submitted at once from 64 connections (time until
+//! all are done, jobs per second, failed and lost jobs); 1,000 duplicate submissions of a cached
+//! mesh; 1,000 cached `GET /v1/occluders/{key}` through the API node; and, where `wrk` is
+//! installed, 10 s of cached GETs at 64 connections for the server's own rate and p99.
+//! The load generator shares the machine's cores with the nodes, as on a studio's CI box.
 
 use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -86,23 +90,114 @@ fn report(name: &str, mut latencies: Vec<Duration>, errors: usize, wall: Duratio
     );
 }
 
-fn main() {
-    let data = std::env::temp_dir().join(format!("occluder-cook-load-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&data);
-    let mut server = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
-        .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
-        .arg(&data)
+/// One deployment under test: its processes (killed on drop) and the API's address.
+struct Deployment {
+    processes: Vec<Child>,
+    base: String,
+    dirs: Vec<PathBuf>,
+}
+
+impl Drop for Deployment {
+    fn drop(&mut self) {
+        for p in self.processes.iter_mut().rev() {
+            let _ = Command::new("kill").args(["-TERM", &p.id().to_string()]).status();
+            let _ = p.wait();
+        }
+        for d in &self.dirs {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+}
+
+/// Runs the binary and waits for its ready line; returns the process and that line.
+fn spawn(args: &[&str]) -> (Child, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
+        .args(args)
         .args(["--set", "service.max_queue=1000"])
         .stdout(Stdio::piped())
         .spawn()
-        .expect("the server starts");
+        .expect("the binary starts");
     let mut line = String::new();
-    BufReader::new(server.stdout.take().unwrap())
+    BufReader::new(child.stdout.take().unwrap())
         .read_line(&mut line)
         .unwrap();
-    let base = format!("http://{}", line.trim().trim_start_matches("listening on "));
-    println!("server at {base}, {CONNECTIONS} connections");
+    (child, line.trim().to_string())
+}
 
+fn api_base(ready: &str) -> String {
+    format!("http://{}", ready.trim_start_matches("listening on "))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-load-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn sled(workers: usize) -> Deployment {
+    let data = scratch(&format!("sled{workers}"));
+    let workers = format!("service.workers={workers}");
+    let (server, ready) = spawn(&[
+        "serve",
+        "--listen",
+        "127.0.0.1:0",
+        "--data-dir",
+        data.to_str().unwrap(),
+        "--set",
+        &workers,
+    ]);
+    Deployment {
+        processes: vec![server],
+        base: api_base(&ready),
+        dirs: vec![data],
+    }
+}
+
+/// A nats-server, an API node and `workers` worker processes; None without nats-server.
+fn nats(workers: usize) -> Option<Deployment> {
+    let store = scratch(&format!("nats{workers}"));
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .ok()?
+        .local_addr()
+        .ok()?
+        .port();
+    let server = Command::new("nats-server")
+        .args(["-js", "-a", "127.0.0.1", "-p", &port.to_string(), "-sd"])
+        .arg(&store)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .ok()?;
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let url = format!("nats://127.0.0.1:{port}");
+    let mut processes = vec![server];
+    let (api, ready) = spawn(&["serve", "--no-workers", "--listen", "127.0.0.1:0", "--nats", &url]);
+    processes.push(api);
+    for _ in 0..workers {
+        processes.push(spawn(&["worker", "--nats", &url, "--set", "service.workers=1"]).0);
+    }
+    Some(Deployment {
+        processes,
+        base: api_base(&ready),
+        dirs: vec![store],
+    })
+}
+
+/// The figures of one mode.
+struct Row {
+    mode: String,
+    all_done_s: f64,
+    failed: usize,
+    lost: usize,
+    dup_p99_ms: f64,
+    get_p99_ms: f64,
+    wrk: Option<(f64, String)>,
+}
+
+fn measure(mode: &str, base: &str, data: &Path) -> Row {
+    println!("== {mode}: API at {base}, {CONNECTIONS} connections");
     // 1. 200 distinct jobs at once.
     let jobs = Arc::new(Mutex::new(Vec::new()));
     let submitted = Instant::now();
@@ -141,23 +236,24 @@ fn main() {
         }
     }
     let all_done = submitted.elapsed();
+    let lost = 200 - done - failed;
     println!(
-        "200 jobs: {done} done, {failed} failed, {} lost, all finished {:.2} s after submission ({:.1} jobs/s)",
-        200 - done - failed,
+        "200 jobs: {done} done, {failed} failed, {lost} lost, all finished {:.2} s after submission ({:.1} jobs/s)",
         all_done.as_secs_f64(),
         200.0 / all_done.as_secs_f64()
     );
 
     // 2. Duplicate submissions of a cached mesh.
     let cached = mesh(0);
-    let (latencies, errors, wall) = hammer(1000, |agent, _| {
+    let (mut dup, errors, wall) = hammer(1000, |agent, _| {
         let reply = agent
             .post(&format!("{base}/v1/cook"))
             .header("Content-Type", "model/obj")
             .send(&cached[..]);
         ok_200(reply)
     });
-    report("duplicate submission of a cached mesh", latencies, errors, wall);
+    let dup_p99_ms = percentile(&mut dup, 0.99).as_secs_f64() * 1e3;
+    report("duplicate submission of a cached mesh", dup, errors, wall);
 
     // 3. Cached GETs.
     let mut r = agent
@@ -167,9 +263,11 @@ fn main() {
         .unwrap();
     let body: serde_json::Value = serde_json::from_slice(&r.body_mut().read_to_vec().unwrap()).unwrap();
     let url = format!("{base}{}", body["result_url"].as_str().unwrap());
-    let (latencies, errors, wall) = hammer(1000, |agent, _| ok_200(agent.get(&url).call()));
-    report("cached GET /v1/occluders/{key}", latencies, errors, wall);
+    let (mut gets, errors, wall) = hammer(1000, |agent, _| ok_200(agent.get(&url).call()));
+    let get_p99_ms = percentile(&mut gets, 0.99).as_secs_f64() * 1e3;
+    report("cached GET /v1/occluders/{key}", gets, errors, wall);
     // wrk drives far more load than these threads can: the server's own rate and latency.
+    std::fs::create_dir_all(data).unwrap();
     let script = data.join("post.lua");
     let body = String::from_utf8(cached.clone()).unwrap();
     std::fs::write(
@@ -182,15 +280,91 @@ fn main() {
         .args(args)
         .output()
     {
-        Ok(out) => println!("wrk, {what}:\n{}", String::from_utf8_lossy(&out.stdout)),
-        Err(_) => println!("wrk not installed (apt-get install wrk): {what} not measured"),
+        Ok(out) => {
+            let text = String::from_utf8_lossy(&out.stdout).into_owned();
+            println!("wrk, {what}:\n{text}");
+            Some(text)
+        }
+        Err(_) => {
+            println!("wrk not installed (apt-get install wrk): {what} not measured");
+            None
+        }
     };
-    wrk("cached GET /v1/occluders/{key}", &[&url]);
+    let wrk_get = wrk("cached GET /v1/occluders/{key}", &[&url]).and_then(|text| wrk_figures(&text));
     wrk(
         "duplicate POST /v1/cook of a cached mesh",
         &["-s", script.to_str().unwrap(), &format!("{base}/v1/cook")],
     );
-    let _ = Command::new("kill").args(["-TERM", &server.id().to_string()]).status();
-    let _ = server.wait();
-    let _ = std::fs::remove_dir_all(&data);
+    Row {
+        mode: mode.to_string(),
+        all_done_s: all_done.as_secs_f64(),
+        failed,
+        lost,
+        dup_p99_ms,
+        get_p99_ms,
+        wrk: wrk_get,
+    }
+}
+
+/// Requests per second and the 99th percentile, from wrk's `--latency` output.
+fn wrk_figures(text: &str) -> Option<(f64, String)> {
+    let rate = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("Requests/sec:"))?
+        .trim()
+        .parse()
+        .ok()?;
+    let p99 = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("99%"))?
+        .trim()
+        .to_string();
+    Some((rate, p99))
+}
+
+fn main() {
+    let mut rows = Vec::new();
+    for workers in [1, 2] {
+        let deployment = sled(workers);
+        rows.push(measure(
+            &format!("sled, 1 process, {workers} workers"),
+            &deployment.base,
+            &deployment.dirs[0],
+        ));
+    }
+    for workers in [1, 2] {
+        let Some(deployment) = nats(workers) else {
+            println!("nats-server not installed (apt-get install nats-server): the NATS modes are not measured");
+            break;
+        };
+        rows.push(measure(
+            &format!("nats, API node + {workers} worker processes"),
+            &deployment.base,
+            &deployment.dirs[0],
+        ));
+    }
+    println!(
+        "\n{:<42} {:>8} {:>7} {:>6} {:>5} {:>12} {:>12} {:>11} {:>9}",
+        "mode", "200 jobs", "jobs/s", "failed", "lost", "dup POST p99", "GET p99", "wrk GET/s", "wrk p99"
+    );
+    for r in &rows {
+        let (rate, p99) = r
+            .wrk
+            .as_ref()
+            .map_or(("-".to_string(), "-".to_string()), |(rate, p99)| {
+                (format!("{rate:.0}"), p99.clone())
+            });
+        println!(
+            "{:<42} {:>7.1}s {:>7.2} {:>6} {:>5} {:>9.2} ms {:>9.2} ms {:>11} {:>9}",
+            r.mode,
+            r.all_done_s,
+            200.0 / r.all_done_s,
+            r.failed,
+            r.lost,
+            r.dup_p99_ms,
+            r.get_p99_ms,
+            rate,
+            p99
+        );
+    }
 }

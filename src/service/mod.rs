@@ -43,6 +43,9 @@ pub struct LevelJobSettings {
     pub level: crate::config::LevelSettings,
 }
 
+/// How long a claim may name a job whose record is not stored before it counts as stale.
+const CLAIM_GRACE_MS: u64 = 60_000;
+
 /// Most remembered uploads; the memo starts over beyond it.
 const SEEN_UPLOADS: usize = 100_000;
 
@@ -142,19 +145,16 @@ impl Service {
         };
         // Claim the key first, so that an identical submission arriving now, on any node, joins
         // this job. A claim left by a job that has ended (its node died) is taken over.
-        loop {
-            let Some(holder) = self.store.claim(key, &job.id).await? else {
-                break;
-            };
-            match self.store.job(&holder).await? {
+        while let Some(holder) = self.store.claim(key, &job.id).await? {
+            match self.held_job(&holder).await? {
                 Some(held) if !held.state.is_finished() => {
                     metrics::counter!("occluder_dedup_joins_total").increment(1);
-                    return Ok(Submitted::Queued(holder));
+                    return Ok(Submitted::Queued(holder.job));
                 }
                 Some(held) if held.state == JobState::Done && self.result_meta(key).await?.is_some() => {
-                    return Ok(Submitted::Cached(holder));
+                    return Ok(Submitted::Cached(holder.job));
                 }
-                _ => self.store.release(key, &holder).await?,
+                _ => self.store.release(key, &holder.job).await?,
             }
         }
         metrics::counter!("occluder_cache_misses_total").increment(1);
@@ -164,6 +164,7 @@ impl Service {
             return Err(SubmitError::QueueFull(waiting));
         }
         let stored = async {
+            // The input first: the job's record makes both durable (sled flushes there).
             self.store.put_input(key, &input).await?;
             self.store.put_job(&job).await?;
             self.store.enqueue(&job.id).await
@@ -183,6 +184,20 @@ impl Service {
         }
         self.update_gauges().await;
         Ok(Submitted::Queued(job.id))
+    }
+
+    /// The job that holds a claim. Its record follows the claim within moments: a young claim
+    /// whose job is not stored yet is waited for, an old one is stale (its node died between).
+    async fn held_job(&self, claim: &store::Claim) -> StoreResult<Option<Job>> {
+        loop {
+            if let Some(job) = self.store.job(&claim.job).await? {
+                return Ok(Some(job));
+            }
+            if now_ms().saturating_sub(claim.since_ms) > CLAIM_GRACE_MS {
+                return Ok(None);
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
     }
 
     /// The key of an upload seen before.

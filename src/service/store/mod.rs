@@ -69,6 +69,29 @@ pub struct ResultMeta {
     pub created_ms: u64,
 }
 
+/// Which job holds a key, and since when (ms since the Unix epoch). The holder's record is
+/// written just after its claim, so a claim may briefly name a job not stored yet.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Claim {
+    pub job: String,
+    pub since_ms: u64,
+}
+
+impl Claim {
+    /// `job since_ms`, as a store keeps it.
+    pub fn encode(&self) -> String {
+        format!("{} {}", self.job, self.since_ms)
+    }
+
+    pub fn decode(text: &str) -> Option<Claim> {
+        let (job, since) = text.split_once(' ')?;
+        Some(Claim {
+            job: job.to_string(),
+            since_ms: since.parse().ok()?,
+        })
+    }
+}
+
 /// A job handed to a worker. Until [`Delivery::finish`] the queue may hand it out again: after
 /// a restart (sled), or once its worker stops keeping it alive (NATS).
 #[async_trait]
@@ -93,8 +116,8 @@ pub trait Store: Send + Sync + 'static {
     }
     async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
 
-    /// Claims `key` for the job `id`, unless a job holds it already: then that job's id.
-    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<String>>;
+    /// Claims `key` for the job `id`, unless a job holds it already: then that claim.
+    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>>;
     /// Lets go of `key` if the job `id` holds it.
     async fn release(&self, key: &str, id: &str) -> StoreResult<()>;
     /// Puts a stored job on the work queue.

@@ -7,12 +7,14 @@
 //! `max_deliver + 1` times: the last time only to mark it failed, so that a mesh that keeps
 //! killing workers ends as a failed job instead of vanishing.
 
-use super::{Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
 use crate::config::ServiceSettings;
-use crate::service::job::Job;
+use crate::service::job::{Job, now_ms};
 use async_nats::jetstream::{self, AckKind, consumer, kv, object_store, stream};
 use async_trait::async_trait;
 use futures_util::StreamExt;
+use std::collections::{HashMap, VecDeque};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use tokio::io::AsyncReadExt;
 
@@ -25,6 +27,8 @@ const RESULTS_BUCKET: &str = "occluder-results";
 const BLOBS_BUCKET: &str = "occluder-blobs";
 /// How long a node waits for NATS at start (it may come up after the node).
 const CONNECT_PATIENCE: Duration = Duration::from_secs(30);
+/// Bytes of verified results a node keeps in memory.
+const RECENT_RESULT_BYTES: usize = 64 << 20;
 
 pub struct NatsStore {
     jetstream: jetstream::Context,
@@ -34,6 +38,38 @@ pub struct NatsStore {
     claims: kv::Store,
     results: kv::Store,
     blobs: object_store::ObjectStore,
+    recent: Mutex<RecentResults>,
+}
+
+/// Results read lately, verified. A result never changes under its key, and each object-store
+/// read costs a consumer on the server: cached GETs come from here.
+#[derive(Default)]
+struct RecentResults {
+    blobs: HashMap<String, Vec<u8>>,
+    order: VecDeque<String>,
+    bytes: usize,
+}
+
+impl RecentResults {
+    fn insert(&mut self, name: &str, payload: &[u8]) {
+        if payload.len() > RECENT_RESULT_BYTES / 8 || self.blobs.contains_key(name) {
+            return;
+        }
+        while self.bytes + payload.len() > RECENT_RESULT_BYTES {
+            let Some(oldest) = self.order.pop_front() else { break };
+            self.bytes -= self.blobs.remove(&oldest).map_or(0, |b| b.len());
+        }
+        self.bytes += payload.len();
+        self.blobs.insert(name.to_string(), payload.to_vec());
+        self.order.push_back(name.to_string());
+    }
+
+    fn remove(&mut self, name: &str) {
+        if let Some(blob) = self.blobs.remove(name) {
+            self.bytes -= blob.len();
+            self.order.retain(|n| n != name);
+        }
+    }
 }
 
 fn backend(e: impl std::fmt::Display) -> StoreError {
@@ -105,6 +141,7 @@ impl NatsStore {
             claims,
             results,
             blobs,
+            recent: Mutex::default(),
         })
     }
 
@@ -112,6 +149,18 @@ impl NatsStore {
         let sealed = seal(payload);
         self.blobs.put(name, &mut sealed.as_slice()).await.map_err(backend)?;
         Ok(())
+    }
+
+    /// A result blob, from memory when it was read lately.
+    async fn result_blob(&self, name: &str) -> StoreResult<Option<Vec<u8>>> {
+        if let Some(payload) = self.recent.lock().unwrap().blobs.get(name) {
+            return Ok(Some(payload.clone()));
+        }
+        let payload = self.blob(name).await?;
+        if let Some(payload) = &payload {
+            self.recent.lock().unwrap().insert(name, payload);
+        }
+        Ok(payload)
     }
 
     /// The sealed blob `name`; a broken seal deletes it and reads as missing.
@@ -135,6 +184,7 @@ impl NatsStore {
     }
 
     async fn delete_blob(&self, name: &str) -> StoreResult<()> {
+        self.recent.lock().unwrap().remove(name);
         match self.blobs.delete(name).await {
             Ok(()) => Ok(()),
             Err(e) if e.kind() == object_store::DeleteErrorKind::NotFound => Ok(()),
@@ -222,14 +272,21 @@ impl Store for NatsStore {
         Self::record(&self.jobs, id).await
     }
 
-    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<String>> {
+    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>> {
+        let claim = Claim {
+            job: id.to_string(),
+            since_ms: now_ms(),
+        };
         // A claim can be released between a failed create and the read: try again then.
         for _ in 0..8 {
-            match self.claims.create(key, id.to_string().into()).await {
+            match self.claims.create(key, claim.encode().into()).await {
                 Ok(_) => return Ok(None),
                 Err(e) if e.kind() == kv::CreateErrorKind::AlreadyExists => {
-                    if let Some(holder) = self.claims.get(key).await.map_err(backend)? {
-                        return Ok(Some(String::from_utf8_lossy(&holder).into_owned()));
+                    if let Some(held) = self.claims.get(key).await.map_err(backend)? {
+                        let held = std::str::from_utf8(&held).ok().and_then(Claim::decode);
+                        return held
+                            .map(Some)
+                            .ok_or_else(|| StoreError::Decode(format!("the claim on {key}")));
                     }
                 }
                 Err(e) => return Err(backend(e)),
@@ -242,7 +299,8 @@ impl Store for NatsStore {
         let Some(entry) = self.claims.entry(key).await.map_err(backend)? else {
             return Ok(());
         };
-        if entry.operation == kv::Operation::Put && entry.value.as_ref() == id.as_bytes() {
+        let held = std::str::from_utf8(&entry.value).ok().and_then(Claim::decode);
+        if entry.operation == kv::Operation::Put && held.is_some_and(|claim| claim.job == id) {
             // Only this revision: a claim taken since by another job stays.
             if let Err(e) = self.claims.delete_expect_revision(key, Some(entry.revision)).await {
                 tracing::debug!(key, error = %e, "claim changed hands before its release");
@@ -316,11 +374,11 @@ impl Store for NatsStore {
     }
 
     async fn result_glb(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
-        self.blob(&glb_blob(key)).await
+        self.result_blob(&glb_blob(key)).await
     }
 
     async fn result_report(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
-        self.blob(&report_blob(key)).await
+        self.result_blob(&report_blob(key)).await
     }
 
     async fn result_meta(&self, key: &str) -> StoreResult<Option<ResultMeta>> {

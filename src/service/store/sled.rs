@@ -1,7 +1,7 @@
 //! The embedded store: one sled database with a tree per kind of record, and the work queue in
 //! memory, rebuilt on open from the jobs a previous run left unfinished.
 
-use super::{Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
 use crate::service::job::{Job, JobState, now_ms};
 use async_trait::async_trait;
 use std::collections::{HashMap, VecDeque};
@@ -26,7 +26,7 @@ pub struct SledStore {
 struct Queue {
     waiting: Mutex<VecDeque<(String, u32)>>,
     ready: tokio::sync::Notify,
-    claims: Mutex<HashMap<String, String>>,
+    claims: Mutex<HashMap<String, Claim>>,
     unfinished: AtomicUsize,
 }
 
@@ -104,11 +104,11 @@ impl SledStore {
             job.updated_ms = now_ms();
             let bytes = serde_json::to_vec(&job).expect("jobs serialize");
             self.jobs.insert(job.id.as_bytes(), bytes).map_err(backend)?;
-            self.queue
-                .claims
-                .lock()
-                .unwrap()
-                .insert(job.key.clone(), job.id.clone());
+            let claim = Claim {
+                job: job.id.clone(),
+                since_ms: job.created_ms,
+            };
+            self.queue.claims.lock().unwrap().insert(job.key.clone(), claim);
             self.queue.push(job.id, job.attempts);
         }
         self.db.flush().map_err(backend)?;
@@ -160,18 +160,22 @@ impl Store for SledStore {
         self.jobs.get(id).map_err(backend)?.map(|v| decode(&v)).transpose()
     }
 
-    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<String>> {
+    async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>> {
         let mut claims = self.queue.claims.lock().unwrap();
         if let Some(holder) = claims.get(key) {
             return Ok(Some(holder.clone()));
         }
-        claims.insert(key.to_string(), id.to_string());
+        let claim = Claim {
+            job: id.to_string(),
+            since_ms: now_ms(),
+        };
+        claims.insert(key.to_string(), claim);
         Ok(None)
     }
 
     async fn release(&self, key: &str, id: &str) -> StoreResult<()> {
         let mut claims = self.queue.claims.lock().unwrap();
-        if claims.get(key).is_some_and(|holder| holder == id) {
+        if claims.get(key).is_some_and(|holder| holder.job == id) {
             claims.remove(key);
         }
         Ok(())

@@ -390,11 +390,21 @@ pub fn cook_with_progress(
     if occluder.triangles() == 0 {
         notes.push("the occluder is empty: no piece added enough silhouette within the triangle budget".into());
     }
-    let quality = with_eval.then(|| {
-        timings.time("eval", || {
-            evaluate(&mesh, &topology.boundary, &occluder.mesh(), &settings.eval)
-        })
-    });
+    if with_eval && gpu.is_some() && settings.eval.view_set == crate::eval::ViewSet::Outside {
+        gpu_stages.push("eval");
+    }
+    let quality = match with_eval {
+        false => None,
+        true => Some(timings.time("eval", || {
+            evaluate(
+                &mesh,
+                &topology.boundary,
+                &occluder.mesh(),
+                &settings.eval,
+                gpu.as_deref(),
+            )
+        })?),
+    };
     let kept_voxels: usize = kept.iter().map(|&i| voxel_boxes[i].voxels()).sum();
     let report = Report {
         pipeline_version: PIPELINE_VERSION,

@@ -284,7 +284,18 @@ fn run(cli: Cli) -> Result<()> {
                 Err(mesh::IngestError::Empty(_)) => mesh::Mesh::default(),
                 Err(e) => return Err(e).with_context(|| format!("occluder {}", occluder.display())),
             };
-            let q = eval::evaluate(&original_mesh, &topology.boundary, &occluder_mesh, &settings.eval);
+            let placement = occluder_cook::gpu::for_choice(settings.cook.device)?;
+            let q = eval::evaluate(
+                &original_mesh,
+                &topology.boundary,
+                &occluder_mesh,
+                &settings.eval,
+                placement.gpu.as_deref(),
+            )?;
+            match &placement.gpu {
+                Some(gpu) => println!("rendered on        {}", gpu.name()),
+                None => println!("rendered on        cpu"),
+            }
             println!("triangles          {}", q.occluder_triangles);
             println!(
                 "coverage           {:.2}% (min {:.2}%) over {} views",

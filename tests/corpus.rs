@@ -79,7 +79,8 @@ fn room_gets_few_quads_and_no_false_pixels() {
     let topology = orient_closed_components(&mut mesh);
     let mut settings = common::defaults().eval;
     settings.view_set = ViewSet::Inside;
-    let inside = evaluate(&mesh, &topology.boundary, &cooked.occluder.mesh(), &settings);
+    let inside =
+        evaluate(&mesh, &topology.boundary, &cooked.occluder.mesh(), &settings, None).expect("the CPU evaluates");
     println!(
         "room from its centre: coverage {:.1}%, false pixels {}",
         inside.coverage * 100.0,

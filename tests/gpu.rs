@@ -1,4 +1,4 @@
-//! The GPU voxel stages against their CPU twins: surface and parity voxels identical, winding
+//! The GPU stages against their CPU twins: surface and parity voxels identical, winding
 //! within 0.1%. Runs on lavapipe where there is no hardware GPU; CI installs it, so there a
 //! missing adapter fails instead of skipping.
 
@@ -282,11 +282,18 @@ fn a_cook_on_the_gpu_gives_the_cpu_occluder_with_no_false_pixels() {
     ] {
         let (g, c) = (cook_on("gpu", mesh.clone()), cook_on("cpu", mesh));
         assert!(g.report.gpu_stages.contains(&"surface") && c.report.gpu_stages.is_empty());
+        assert!(g.report.gpu_stages.contains(&"eval"), "{:?}", g.report.gpu_stages);
         assert_eq!(g.occluder.solid.positions, c.occluder.solid.positions, "{name}");
         assert_eq!(g.report.occluder.triangles, c.report.occluder.triangles, "{name}");
-        let q = g.report.quality.as_ref().expect("evaluated");
-        assert_eq!(q.false_pixels, 0, "{name}");
+        let (q, twin) = (g.report.quality.as_ref().unwrap(), c.report.quality.as_ref().unwrap());
+        assert_eq!((q.false_pixels, twin.false_pixels), (0, 0), "{name}");
         assert!(q.coverage > 0.5, "{name}: coverage {}", q.coverage);
+        assert!(
+            (q.coverage - twin.coverage).abs() < 0.002,
+            "{name}: {} vs {}",
+            q.coverage,
+            twin.coverage
+        );
     }
 }
 
@@ -304,4 +311,29 @@ fn a_stage_that_cannot_fit_the_device_fails_that_call_alone() {
     assert!(error.to_string().contains("storage binding"), "{error}");
     let next = gpu::voxel::surface(&gpu, &mesh, &grid).expect("the device still works");
     assert_eq!(next, surface::voxelize(&mesh, &grid));
+}
+
+#[test]
+fn the_eval_on_the_gpu_counts_the_false_pixels_of_a_wrong_occluder_as_the_cpu_does() {
+    let Some(gpu) = device() else { return };
+    let original = torus(1.0, 0.4, 48, 24);
+    // A slab through the hole and out past the rim: wrong in most views.
+    let wrong = cuboid(Vec3::new(-1.6, -0.1, -1.6), Vec3::new(1.6, 0.1, 1.6), &[]);
+    let settings = common::defaults().eval;
+    let run =
+        |gpu: Option<&Gpu>| occluder_cook::eval::evaluate(&original, &[], &wrong, &settings, gpu).expect("evaluates");
+    let (g, c) = (run(Some(&gpu)), run(None));
+    eprintln!(
+        "false pixels: gpu {} cpu {}; coverage gpu {:.4} cpu {:.4}",
+        g.false_pixels, c.false_pixels, g.coverage, c.coverage
+    );
+    assert!(c.false_pixels > 10_000, "{}", c.false_pixels);
+    let gap = g.false_pixels.abs_diff(c.false_pixels) as f64;
+    assert!(
+        gap <= 0.005 * c.false_pixels as f64,
+        "gpu {} cpu {}",
+        g.false_pixels,
+        c.false_pixels
+    );
+    assert!((g.coverage - c.coverage).abs() < 0.002);
 }

@@ -3,6 +3,7 @@
 use super::proximity::SurfaceIndex;
 use super::raster::{View, depth_image};
 use super::views::fibonacci_sphere;
+use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::winding::WindingField;
 use glam::DVec3;
@@ -54,8 +55,16 @@ pub struct Quality {
     pub worst_view: Option<([f64; 3], u64)>,
 }
 
-/// Judges `occluder` against `original`; `boundary` is the original's open boundary.
-pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, settings: &EvalSettings) -> Quality {
+/// Judges `occluder` against `original`; `boundary` is the original's open boundary. With a
+/// `gpu`, the outside views are rendered there (shaders/raster.wgsl); inside views, which are
+/// perspective, always on the CPU.
+pub fn evaluate(
+    original: &Mesh,
+    boundary: &[BoundaryEdge],
+    occluder: &Mesh,
+    settings: &EvalSettings,
+    gpu: Option<&Gpu>,
+) -> Result<Quality, GpuError> {
     let (center, radius) = original.bounding_sphere();
     let views: Vec<View> = match settings.view_set {
         ViewSet::Outside => fibonacci_sphere(settings.views)
@@ -70,14 +79,20 @@ pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, set
     // Inside views are all from where a player stands; outside ones are "below" when the
     // camera is under the object.
     let inside = settings.view_set == ViewSet::Inside;
+    let images = |mesh: &Mesh| -> Result<Vec<Vec<f32>>, GpuError> {
+        match gpu {
+            Some(gpu) if !inside && !mesh.triangles.is_empty() => crate::gpu::raster::depth_images(gpu, mesh, &views),
+            _ => Ok(views.par_iter().map(|view| depth_image(view, mesh)).collect()),
+        }
+    };
+    let (originals, occluders) = (images(original)?, images(occluder)?);
     let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = views
         .par_iter()
-        .map(|view| {
-            let m = depth_image(view, original);
-            let o = depth_image(view, occluder);
+        .zip(originals.par_iter().zip(&occluders))
+        .map(|(view, (m, o))| {
             let tolerance = view.depth_tolerance() as f32;
             let (mut both, mut seen, mut false_pixels) = (0u64, 0u64, 0u64);
-            for (dm, d_o) in m.iter().zip(&o) {
+            for (dm, d_o) in m.iter().zip(o.iter()) {
                 seen += u64::from(dm.is_finite());
                 if d_o.is_finite() {
                     if dm.is_finite() {
@@ -100,7 +115,7 @@ pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, set
         .par_iter()
         .filter(|&&p| field.winding(p) < 0.5 && !surface.on_surface(p))
         .count();
-    Quality {
+    Ok(Quality {
         coverage: seen.iter().sum::<f64>() / n,
         coverage_min: seen.iter().copied().fold(1.0, f64::min),
         false_pixels: per_view.iter().map(|v| v.1).sum(),
@@ -119,7 +134,7 @@ pub fn evaluate(original: &Mesh, boundary: &[BoundaryEdge], occluder: &Mesh, set
             .filter(|v| v.1 > 0)
             .max_by_key(|v| v.1)
             .map(|v| (v.3.to_array(), v.1)),
-    }
+    })
 }
 
 /// `n` points spread over the mesh's surface by area, from a fixed seed.

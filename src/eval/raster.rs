@@ -107,8 +107,10 @@ impl View {
 
     /// For a GPU render of an orthographic view: the matrix from points relative to `origin`
     /// to clip space, x and y as [`View::project`] has them over [-1, 1], and z its depth over
-    /// the framed diameter (2 × radius), in [0, 1]. None for perspective views.
-    pub fn ortho_clip_matrix(&self, origin: DVec3) -> Option<glam::DMat4> {
+    /// the framed diameter (2 × radius) widened by `margin` at both ends, in [0, 1]: a mesh
+    /// reaching out of the framed sphere (another tool's occluder) is not clipped. None for
+    /// perspective views.
+    pub fn ortho_clip_matrix(&self, origin: DVec3, margin: f64) -> Option<glam::DMat4> {
         let Lens::Orthographic { center, radius } = self.lens else {
             return None;
         };
@@ -117,22 +119,34 @@ impl View {
             let v = v * scale;
             glam::DVec4::new(v.x, v.y, v.z, offset - v.dot(c))
         };
+        let reach = radius + margin;
         let rows = [
             row(self.right, 1.0 / radius, 0.0),
             row(self.up, 1.0 / radius, 0.0),
-            row(-self.dir, 0.5 / radius, 0.5),
+            row(-self.dir, 0.5 / reach, 0.5),
             glam::DVec4::W,
         ];
         Some(glam::DMat4::from_cols_array_2d(&rows.map(|r| r.to_array())).transpose())
     }
 
     /// The depth an orthographic view's GPU depth buffer value stands for (see
-    /// [`View::ortho_clip_matrix`]).
-    pub fn ortho_depth(&self, buffer: f32) -> Option<f32> {
+    /// [`View::ortho_clip_matrix`], with the same `margin`).
+    pub fn ortho_depth(&self, buffer: f32, margin: f64) -> Option<f32> {
         match self.lens {
-            Lens::Orthographic { radius, .. } => Some((f64::from(buffer) * 2.0 * radius) as f32),
+            Lens::Orthographic { radius, .. } => Some((f64::from(buffer) * 2.0 * (radius + margin) - margin) as f32),
             Lens::Perspective { .. } => None,
         }
+    }
+
+    /// How far `mesh` reaches out of the sphere an orthographic view frames (0 inside it).
+    pub fn ortho_margin(&self, mesh: &crate::mesh::Mesh) -> f64 {
+        let Lens::Orthographic { center, radius } = self.lens else {
+            return 0.0;
+        };
+        let (lo, hi) = mesh.bounds();
+        let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+        let farthest = (center - lo).abs().max((hi - center).abs()).length();
+        (farthest - radius).max(0.0)
     }
 
     /// The depth tolerance of "nearer than" tests: 1e-4 of the framed diameter.

@@ -55,7 +55,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         for (i, view) in views.iter().enumerate() {
             let matrix = view
-                .ortho_clip_matrix(origin)
+                .ortho_clip_matrix(origin, view.ortho_margin(mesh))
                 .ok_or_else(|| GpuError::Unsupported("GPU depth images are orthographic only".into()))?
                 .as_mat4();
             let camera = init(
@@ -109,11 +109,12 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
             .iter()
             .zip(raw.chunks(per_row * n))
             .map(|(view, image)| {
+                let margin = view.ortho_margin(mesh);
                 // The GPU's first row is the top one.
                 (0..n)
                     .rev()
                     .flat_map(|y| image[y * per_row..y * per_row + n].iter())
-                    .map(|&d| match view.ortho_depth(d) {
+                    .map(|&d| match view.ortho_depth(d, margin) {
                         Some(depth) if d < 1.0 => depth,
                         _ => f32::INFINITY,
                     })

@@ -72,6 +72,22 @@ pub struct CookSettings {
     pub shapes: Vec<Shape>,
     pub quad_grid: usize,
     pub min_patch_area: f64,
+    pub cpsv_pixels: usize,
+    pub cpsv_back_share: f64,
+    pub cpsv_inside_faces: usize,
+    pub cpsv_votes: u32,
+}
+
+impl CookSettings {
+    /// The thresholds of `inside = "cpsv"`.
+    pub fn cpsv(&self) -> crate::voxel::cpsv::CpsvSettings {
+        crate::voxel::cpsv::CpsvSettings {
+            pixels: self.cpsv_pixels,
+            back_share: self.cpsv_back_share,
+            inside_faces: self.cpsv_inside_faces,
+            votes: self.cpsv_votes,
+        }
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -220,6 +236,10 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.min_silhouette_gain", c.min_silhouette_gain, 0.0, 1.0)?;
     check("cook.quad_grid", c.quad_grid as f64, 8.0, 4096.0)?;
     check("cook.min_patch_area", c.min_patch_area, 0.0, 1.0)?;
+    check("cook.cpsv_pixels", c.cpsv_pixels as f64, 8.0, 1024.0)?;
+    check("cook.cpsv_back_share", c.cpsv_back_share, 0.0, 1.0)?;
+    check("cook.cpsv_inside_faces", c.cpsv_inside_faces as f64, 1.0, 6.0)?;
+    check("cook.cpsv_votes", f64::from(c.cpsv_votes), 1.0, 1e6)?;
     check("eval.views", e.views as f64, 1.0, 4096.0)?;
     check(
         "level.batch_max_triangles",

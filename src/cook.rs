@@ -121,6 +121,9 @@ pub struct VoxelReport {
     pub inner: usize,
     /// Inner voxels left out because they show through an opening (open meshes only).
     pub exposed: usize,
+    /// Cells, seeds and undecided cells of `inside = "cpsv"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cpsv: Option<crate::voxel::cpsv::CpsvStats>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -232,16 +235,25 @@ pub fn cook_with_progress(
     } else {
         Vec::new()
     };
-    let solid = timings.time("inside", || {
-        match voxel::classify(cook.inside, &mesh, &topology, &grid, gpu.as_deref()) {
-            Err(GpuError::Unsupported(why)) => {
-                notes.push(format!("inside ran on the CPU: {why}"));
-                gpu_stages.retain(|s| *s != "inside");
-                voxel::classify(cook.inside, &mesh, &topology, &grid, None)
-            }
-            result => result,
+    let cpsv_settings = cook.cpsv();
+    let classify = |gpu| voxel::classify(cook.inside, &mesh, &topology, &grid, &surface, &cpsv_settings, gpu);
+    let classified = timings.time("inside", || match classify(gpu.as_deref()) {
+        Err(GpuError::Unsupported(why)) => {
+            notes.push(format!("inside ran on the CPU: {why}"));
+            gpu_stages.retain(|s| *s != "inside");
+            classify(None)
         }
+        result => result,
     })?;
+    let solid = classified.solid;
+    if let Some(stats) = &classified.cpsv
+        && stats.undecided_cells > 0
+    {
+        notes.push(format!(
+            "cpsv left {} of {} cells ({} voxels) undecided; they count as outside",
+            stats.undecided_cells, stats.cells, stats.undecided_voxels
+        ));
+    }
     let mut inner: Vec<bool> = timings.time("inner", || solid.iter().zip(&surface).map(|(&s, &t)| s && !t).collect());
     // Only open meshes can show their inside.
     let open_views = match topology.boundary.is_empty() {
@@ -318,17 +330,13 @@ pub fn cook_with_progress(
         let quads = timings.time("quads", || {
             // A closed surface's crossings decide exactly. An open one's winding number varies
             // away from the surface, so its inner voxels decide: those that no camera sees
-            // through an opening. The exposure test then checks each quad.
-            let inside = |p: DVec3| {
-                if topology.boundary.is_empty() {
-                    let (sum, count) = field.crossings_above(p);
-                    match cook.inside {
-                        InsideMethod::Winding => sum >= 1,
-                        InsideMethod::Parity => count % 2 == 1,
-                    }
-                } else {
-                    grid.containing(p).is_some_and(|i| inner[i])
-                }
+            // through an opening. The exposure test then checks each quad. cpsv decides by
+            // cells, so its inner voxels decide too.
+            let closed = topology.boundary.is_empty();
+            let inside = |p: DVec3| match cook.inside {
+                InsideMethod::Winding if closed => field.crossings_above(p).0 >= 1,
+                InsideMethod::Parity if closed => field.crossings_above(p).1 % 2 == 1,
+                _ => grid.containing(p).is_some_and(|i| inner[i]),
             };
             quads::find(&mesh, cook.quad_grid, &inside)
         });
@@ -419,6 +427,7 @@ pub fn cook_with_progress(
             solid: solid.iter().filter(|&&v| v).count(),
             inner: inner_count,
             exposed: exposed_voxels,
+            cpsv: classified.cpsv,
         },
         grid,
         boxes: BoxReport {

@@ -31,8 +31,32 @@ fn compare(gpu: &Gpu, name: &str, mut mesh: Mesh, resolution: usize) -> usize {
     let topology = orient_closed_components(&mut mesh);
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, resolution);
-    let on_gpu = |method| classify(method, &mesh, &topology, &grid, Some(gpu)).expect("the GPU runs");
-    let on_cpu = |method| classify(method, &mesh, &topology, &grid, None).expect("the CPU runs");
+    let on_gpu = |method| {
+        classify(
+            method,
+            &mesh,
+            &topology,
+            &grid,
+            &[],
+            &common::defaults().cook.cpsv(),
+            Some(gpu),
+        )
+        .expect("the GPU runs")
+        .solid
+    };
+    let on_cpu = |method| {
+        classify(
+            method,
+            &mesh,
+            &topology,
+            &grid,
+            &[],
+            &common::defaults().cook.cpsv(),
+            None,
+        )
+        .expect("the CPU runs")
+        .solid
+    };
 
     let (g, c) = (
         gpu::voxel::surface(gpu, &mesh, &grid).expect("GPU surface"),
@@ -175,8 +199,28 @@ fn grids_larger_than_a_binding_are_done_in_slabs() {
     let grid = Grid::fit(lo, hi, 96);
     assert!(grid.len() as u64 * 4 > 8 * small.max_binding && mesh.triangles.len() as u64 * 36 > small.max_binding);
     for method in [InsideMethod::Parity, InsideMethod::Winding] {
-        let sliced = classify(method, &mesh, &topology, &grid, Some(&small)).expect("slabs run");
-        let whole = classify(method, &mesh, &topology, &grid, Some(&gpu)).expect("one slab runs");
+        let sliced = classify(
+            method,
+            &mesh,
+            &topology,
+            &grid,
+            &[],
+            &common::defaults().cook.cpsv(),
+            Some(&small),
+        )
+        .expect("slabs run")
+        .solid;
+        let whole = classify(
+            method,
+            &mesh,
+            &topology,
+            &grid,
+            &[],
+            &common::defaults().cook.cpsv(),
+            Some(&gpu),
+        )
+        .expect("one slab runs")
+        .solid;
         assert_eq!(sliced, whole, "{method:?}");
     }
     let sliced = gpu::voxel::surface(&small, &mesh, &grid).expect("slabs run");

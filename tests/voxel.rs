@@ -17,7 +17,17 @@ fn winding_classification_matches_definition_on_open_and_closed_meshes() {
         let topology = orient_closed_components(&mut mesh);
         let (lo, hi) = mesh.bounds();
         let grid = Grid::fit(lo, hi, 20);
-        let solid = classify(InsideMethod::Winding, &mesh, &topology, &grid, None).expect("cpu");
+        let solid = classify(
+            InsideMethod::Winding,
+            &mesh,
+            &topology,
+            &grid,
+            &[],
+            &common::defaults().cook.cpsv(),
+            None,
+        )
+        .expect("cpu")
+        .solid;
         let mut differ = 0;
         for (i, &s) in solid.iter().enumerate() {
             let [x, y, z] = grid.coords(i);
@@ -33,8 +43,28 @@ fn parity_equals_winding_on_a_watertight_mesh() {
     let topology = orient_closed_components(&mut mesh);
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, 32);
-    let parity = classify(InsideMethod::Parity, &mesh, &topology, &grid, None).expect("cpu");
-    let winding = classify(InsideMethod::Winding, &mesh, &topology, &grid, None).expect("cpu");
+    let parity = classify(
+        InsideMethod::Parity,
+        &mesh,
+        &topology,
+        &grid,
+        &[],
+        &common::defaults().cook.cpsv(),
+        None,
+    )
+    .expect("cpu")
+    .solid;
+    let winding = classify(
+        InsideMethod::Winding,
+        &mesh,
+        &topology,
+        &grid,
+        &[],
+        &common::defaults().cook.cpsv(),
+        None,
+    )
+    .expect("cpu")
+    .solid;
     assert_eq!(parity, winding);
     assert!(parity.iter().any(|&v| v));
 }

@@ -5,6 +5,7 @@
 //! those.
 
 pub mod columns;
+pub mod cpsv;
 pub mod grid;
 pub mod parity;
 pub mod surface;
@@ -23,6 +24,9 @@ pub enum InsideMethod {
     Winding,
     /// Crossing-count parity along columns: correct only for watertight meshes; the baseline.
     Parity,
+    /// What the empty space sees: cube maps rendered from octree cells, votes between them
+    /// (the seed article's Complete Polygonal Scene Voxelization). CPU only so far.
+    Cpsv,
 }
 
 /// Which voxels some triangle touches, on `gpu` when given.
@@ -33,23 +37,47 @@ pub fn surface(mesh: &Mesh, grid: &Grid, gpu: Option<&Gpu>) -> Result<Vec<bool>,
     }
 }
 
-/// Which voxel centres lie inside the solid, on `gpu` when given.
+/// The inside/outside classification of every voxel.
+#[derive(Clone, Debug, Default)]
+pub struct Classified {
+    pub solid: Vec<bool>,
+    /// What `cpsv` found, when it ran.
+    pub cpsv: Option<cpsv::CpsvStats>,
+}
+
+/// Which voxel centres lie inside the solid, on `gpu` when given. `cpsv` decides whole cells of
+/// empty space (the `surface` voxels count as solid) and runs on the CPU: on a device it is
+/// [`GpuError::Unsupported`], for the caller to run it here.
 pub fn classify(
     method: InsideMethod,
     mesh: &Mesh,
     topology: &Topology,
     grid: &Grid,
+    surface: &[bool],
+    settings: &cpsv::CpsvSettings,
     gpu: Option<&Gpu>,
-) -> Result<Vec<bool>, GpuError> {
+) -> Result<Classified, GpuError> {
+    let solid = |solid| Classified { solid, cpsv: None };
+    if method == InsideMethod::Cpsv {
+        if gpu.is_some() {
+            return Err(GpuError::Unsupported("cpsv has no GPU stage yet".into()));
+        }
+        let (solid, stats) = cpsv::classify(mesh, grid, surface, settings);
+        return Ok(Classified {
+            solid,
+            cpsv: Some(stats),
+        });
+    }
     if let Some(gpu) = gpu {
         return match method {
-            InsideMethod::Winding => crate::gpu::voxel::winding(gpu, mesh, &topology.boundary, grid),
             InsideMethod::Parity => crate::gpu::voxel::parity(gpu, mesh, grid),
-        };
+            _ => crate::gpu::voxel::winding(gpu, mesh, &topology.boundary, grid),
+        }
+        .map(solid);
     }
     let crossings = columns::ColumnCrossings::build(mesh, grid);
-    Ok(match method {
-        InsideMethod::Winding => winding::classify(&crossings, mesh, &topology.boundary, grid),
+    Ok(solid(match method {
         InsideMethod::Parity => parity::classify(&crossings, grid),
-    })
+        _ => winding::classify(&crossings, mesh, &topology.boundary, grid),
+    }))
 }

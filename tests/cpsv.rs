@@ -74,7 +74,13 @@ fn an_open_bottomed_building_is_solid_inside_and_empty_around() {
 #[test]
 fn cpsv_agrees_with_winding_on_corpus_meshes() {
     let Some(dir) = common::corpus() else { return };
-    for (name, closed) in [("spot.obj", true), ("cow.obj", true), ("suzanne.obj", false)] {
+    for (name, closed) in [
+        ("spot.obj", true),
+        ("cow.obj", true),
+        ("suzanne.obj", false),
+        ("teapot.obj", false),
+        ("kenney-building-small-a.glb", false),
+    ] {
         let (mesh, _) = load_file(&dir.join(name)).expect("corpus mesh loads");
         let (share, stats) = agreement(mesh, 64);
         eprintln!(

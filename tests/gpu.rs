@@ -31,32 +31,8 @@ fn compare(gpu: &Gpu, name: &str, mut mesh: Mesh, resolution: usize) -> usize {
     let topology = orient_closed_components(&mut mesh);
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, resolution);
-    let on_gpu = |method| {
-        classify(
-            method,
-            &mesh,
-            &topology,
-            &grid,
-            &[],
-            &common::defaults().cook.cpsv(),
-            Some(gpu),
-        )
-        .expect("the GPU runs")
-        .solid
-    };
-    let on_cpu = |method| {
-        classify(
-            method,
-            &mesh,
-            &topology,
-            &grid,
-            &[],
-            &common::defaults().cook.cpsv(),
-            None,
-        )
-        .expect("the CPU runs")
-        .solid
-    };
+    let on_gpu = |method| common::solid(method, &mesh, &topology, &grid, Some(gpu));
+    let on_cpu = |method| common::solid(method, &mesh, &topology, &grid, None);
 
     let (g, c) = (
         gpu::voxel::surface(gpu, &mesh, &grid).expect("GPU surface"),
@@ -199,28 +175,8 @@ fn grids_larger_than_a_binding_are_done_in_slabs() {
     let grid = Grid::fit(lo, hi, 96);
     assert!(grid.len() as u64 * 4 > 8 * small.max_binding && mesh.triangles.len() as u64 * 36 > small.max_binding);
     for method in [InsideMethod::Parity, InsideMethod::Winding] {
-        let sliced = classify(
-            method,
-            &mesh,
-            &topology,
-            &grid,
-            &[],
-            &common::defaults().cook.cpsv(),
-            Some(&small),
-        )
-        .expect("slabs run")
-        .solid;
-        let whole = classify(
-            method,
-            &mesh,
-            &topology,
-            &grid,
-            &[],
-            &common::defaults().cook.cpsv(),
-            Some(&gpu),
-        )
-        .expect("one slab runs")
-        .solid;
+        let sliced = common::solid(method, &mesh, &topology, &grid, Some(&small));
+        let whole = common::solid(method, &mesh, &topology, &grid, Some(&gpu));
         assert_eq!(sliced, whole, "{method:?}");
     }
     let sliced = gpu::voxel::surface(&small, &mesh, &grid).expect("slabs run");
@@ -380,4 +336,43 @@ fn the_eval_on_the_gpu_counts_the_false_pixels_of_a_wrong_occluder_as_the_cpu_do
         c.false_pixels
     );
     assert!((g.coverage - c.coverage).abs() < 0.002);
+}
+
+#[test]
+fn cpsv_on_the_gpu_matches_its_cpu_twin() {
+    let Some(gpu) = device() else { return };
+    let mut meshes = vec![
+        ("torus".to_string(), torus(1.0, 0.4, 48, 24), 32),
+        (
+            "open building".to_string(),
+            cuboid(Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 1.5, 1.0), &[2]),
+            24,
+        ),
+    ];
+    if let Some(dir) = common::corpus() {
+        let (mesh, _) = load_file(&dir.join("spot.obj")).expect("corpus mesh loads");
+        meshes.push(("spot.obj".into(), mesh, 64));
+    }
+    let settings = common::defaults().cook.cpsv();
+    for (name, mut mesh, resolution) in meshes {
+        let topology = orient_closed_components(&mut mesh);
+        let (lo, hi) = mesh.bounds();
+        let grid = Grid::fit(lo, hi, resolution);
+        let surface = surface::voxelize(&mesh, &grid);
+        let run =
+            |gpu| classify(InsideMethod::Cpsv, &mesh, &topology, &grid, &surface, &settings, gpu).expect("cpsv runs");
+        let (g, c) = (run(Some(&gpu)), run(None));
+        let d = differ(&g.solid, &c.solid);
+        eprintln!(
+            "{name} @{resolution}: cpsv differs at {d} of {} voxels; gpu {:?}, cpu {:?}",
+            grid.len(),
+            g.cpsv,
+            c.cpsv
+        );
+        assert!(d as f64 <= 0.001 * grid.len() as f64, "{name}: {d} voxels differ");
+        assert!(
+            c.solid.iter().zip(&surface).any(|(&s, &t)| s && !t),
+            "{name}: nothing inside"
+        );
+    }
 }

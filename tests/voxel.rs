@@ -5,7 +5,7 @@ mod common;
 use common::{cuboid, torus};
 use glam::Vec3;
 use occluder_cook::mesh::topology::orient_closed_components;
-use occluder_cook::voxel::{Grid, InsideMethod, classify, surface, winding::direct};
+use occluder_cook::voxel::{Grid, InsideMethod, surface, winding::direct};
 
 #[test]
 fn winding_classification_matches_definition_on_open_and_closed_meshes() {
@@ -17,17 +17,7 @@ fn winding_classification_matches_definition_on_open_and_closed_meshes() {
         let topology = orient_closed_components(&mut mesh);
         let (lo, hi) = mesh.bounds();
         let grid = Grid::fit(lo, hi, 20);
-        let solid = classify(
-            InsideMethod::Winding,
-            &mesh,
-            &topology,
-            &grid,
-            &[],
-            &common::defaults().cook.cpsv(),
-            None,
-        )
-        .expect("cpu")
-        .solid;
+        let solid = common::solid(InsideMethod::Winding, &mesh, &topology, &grid, None);
         let mut differ = 0;
         for (i, &s) in solid.iter().enumerate() {
             let [x, y, z] = grid.coords(i);
@@ -43,28 +33,8 @@ fn parity_equals_winding_on_a_watertight_mesh() {
     let topology = orient_closed_components(&mut mesh);
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, 32);
-    let parity = classify(
-        InsideMethod::Parity,
-        &mesh,
-        &topology,
-        &grid,
-        &[],
-        &common::defaults().cook.cpsv(),
-        None,
-    )
-    .expect("cpu")
-    .solid;
-    let winding = classify(
-        InsideMethod::Winding,
-        &mesh,
-        &topology,
-        &grid,
-        &[],
-        &common::defaults().cook.cpsv(),
-        None,
-    )
-    .expect("cpu")
-    .solid;
+    let parity = common::solid(InsideMethod::Parity, &mesh, &topology, &grid, None);
+    let winding = common::solid(InsideMethod::Winding, &mesh, &topology, &grid, None);
     assert_eq!(parity, winding);
     assert!(parity.iter().any(|&v| v));
 }

@@ -28,23 +28,6 @@ pub struct InstanceScene<'a> {
     depth: wgpu::Texture,
 }
 
-fn render_target(gpu: &Gpu, format: wgpu::TextureFormat, pixels: u32, usage: wgpu::TextureUsages) -> wgpu::Texture {
-    gpu.device.create_texture(&wgpu::TextureDescriptor {
-        label: None,
-        size: wgpu::Extent3d {
-            width: pixels,
-            height: pixels,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format,
-        usage,
-        view_formats: &[],
-    })
-}
-
 impl<'a> InstanceScene<'a> {
     /// `placed` holds each instance's world-space corner positions and its triangles; images
     /// are `pixels` square.
@@ -110,13 +93,13 @@ impl<'a> InstanceScene<'a> {
             ranges,
             pipeline,
             pixels,
-            ids: render_target(
+            ids: super::render_target(
                 gpu,
                 IDS,
                 pixels,
                 wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             ),
-            depth: render_target(gpu, super::DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT),
+            depth: super::render_target(gpu, super::DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT),
         }
     }
 

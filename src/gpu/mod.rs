@@ -10,6 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
+pub mod cpsv;
 pub mod cull;
 pub mod raster;
 pub mod voxel;
@@ -202,6 +203,72 @@ pub fn depth_attachment(
         }),
         stencil_ops: None,
     }
+}
+
+/// A square render target of one layer.
+pub(crate) fn render_target(
+    gpu: &Gpu,
+    format: wgpu::TextureFormat,
+    pixels: u32,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: None,
+        size: wgpu::Extent3d {
+            width: pixels,
+            height: pixels,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: &[],
+    })
+}
+
+/// A pipeline drawing a mesh's positions (three floats a vertex) through `source`'s vertex
+/// entry `place`, both sides, depth-tested with `compare`, and with `fragment` (an entry and
+/// its target's format) where a colour is written.
+pub(crate) fn mesh_pipeline(
+    gpu: &Gpu,
+    source: &str,
+    compare: wgpu::CompareFunction,
+    fragment: Option<(&str, wgpu::TextureFormat)>,
+) -> wgpu::RenderPipeline {
+    let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: None,
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let targets = fragment.map(|(_, format)| [Some(format.into())]);
+    gpu.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: None,
+        layout: None,
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("place"),
+            compilation_options: Default::default(),
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: 12,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+            })],
+        },
+        primitive: wgpu::PrimitiveState::default(),
+        depth_stencil: Some(depth_test(compare)),
+        multisample: Default::default(),
+        fragment: fragment
+            .zip(targets.as_ref())
+            .map(|((entry, _), targets)| wgpu::FragmentState {
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                targets,
+            }),
+        multiview_mask: None,
+        cache: None,
+    })
 }
 
 /// Workgroups are dispatched in a 2D grid of at most this many along x.

@@ -32,25 +32,17 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
         };
         let vertices = init(bytemuck::cast_slice(&positions), wgpu::BufferUsages::VERTEX);
         let indices = init(bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::INDEX);
-        let pipeline = depth_pipeline(gpu);
+        // Both sides, as the twin draws them.
+        let pipeline = super::mesh_pipeline(gpu, SHADER, wgpu::CompareFunction::Less, None);
         let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let image_bytes = u64::from(row) * u64::from(pixels);
         let staging = gpu.staging(image_bytes * views.len() as u64);
-        let size = wgpu::Extent3d {
-            width: pixels,
-            height: pixels,
-            depth_or_array_layers: 1,
-        };
-        let target = gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("depth"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: super::DEPTH_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
+        let target = super::render_target(
+            gpu,
+            super::DEPTH_FORMAT,
+            pixels,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        );
         let target_view = target.create_view(&Default::default());
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         for (i, view) in views.iter().enumerate() {
@@ -100,7 +92,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
                         rows_per_image: None,
                     },
                 },
-                size,
+                target.size(),
             );
         }
         let raw: Vec<f32> = gpu.finish_read(encoder, &staging)?;
@@ -121,33 +113,5 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
                     .collect()
             })
             .collect())
-    })
-}
-
-fn depth_pipeline(gpu: &Gpu) -> wgpu::RenderPipeline {
-    let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("raster"),
-        source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-    });
-    gpu.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("raster"),
-        layout: None,
-        vertex: wgpu::VertexState {
-            module: &module,
-            entry_point: Some("place"),
-            compilation_options: Default::default(),
-            buffers: &[Some(wgpu::VertexBufferLayout {
-                array_stride: 12,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-            })],
-        },
-        // Both sides, as the twin draws them.
-        primitive: wgpu::PrimitiveState::default(),
-        depth_stencil: Some(super::depth_test(wgpu::CompareFunction::Less)),
-        multisample: Default::default(),
-        fragment: None,
-        multiview_mask: None,
-        cache: None,
     })
 }

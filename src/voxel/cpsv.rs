@@ -15,6 +15,8 @@
 
 use super::Grid;
 use crate::eval::raster::{View, rasterize};
+use crate::gpu::cpsv::Seed;
+use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -117,18 +119,12 @@ impl CubeMap {
         CubeMap { views, depth, back }
     }
 
-    /// Inside, outside, or undecided (Unknown), by the back-face share of each face.
-    fn verdict(&self, settings: &CpsvSettings) -> Status {
-        let faces = self
-            .back
+    /// Back-face pixels per face.
+    fn backs(&self) -> Vec<u32> {
+        self.back
             .iter()
-            .filter(|b| b.iter().filter(|&&x| x).count() as f64 > settings.back_share * b.len() as f64)
-            .count();
-        match faces {
-            0 => Status::Outside,
-            n if n >= settings.inside_faces => Status::Inside,
-            _ => Status::Unknown,
-        }
+            .map(|b| b.iter().filter(|&&x| x).count() as u32)
+            .collect()
     }
 
     /// Whether the eye sees `p`: nothing of the mesh lies between them.
@@ -154,8 +150,97 @@ impl CubeMap {
     }
 }
 
-/// Classifies every voxel: `solid` is true inside and on the surface (`surface`).
-pub fn classify(mesh: &Mesh, grid: &Grid, surface: &[bool], settings: &CpsvSettings) -> (Vec<bool>, CpsvStats) {
+/// Inside, outside, or undecided (Unknown), by the back-face pixels of a seed's six faces.
+fn verdict(backs: &[u32], settings: &CpsvSettings) -> Status {
+    let pixels = (settings.pixels * settings.pixels) as f64;
+    let faces = backs
+        .iter()
+        .filter(|&&b| f64::from(b) > settings.back_share * pixels)
+        .count();
+    match faces {
+        0 => Status::Outside,
+        n if n >= settings.inside_faces => Status::Inside,
+        _ => Status::Unknown,
+    }
+}
+
+/// One batch of seeds: each seed's verdict, and each cell's (inside, outside) votes from the
+/// decided seeds that see all its corners (none for cells not unknown). On `gpu` when given
+/// (shaders/cpsv.wgsl), else here.
+fn seeds_and_votes(
+    mesh: &Mesh,
+    grid: &Grid,
+    cells: &[Cell],
+    status: &[Status],
+    seeds: &[Seed],
+    settings: &CpsvSettings,
+    gpu: Option<&Gpu>,
+) -> Result<(Vec<Status>, Vec<[u32; 2]>), GpuError> {
+    if let Some(gpu) = gpu {
+        let boxes: Vec<([DVec3; 2], bool)> = cells
+            .iter()
+            .zip(status)
+            .map(|(c, s)| {
+                (
+                    [c.lo, c.hi].map(|v| grid.to_world(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64))),
+                    *s == Status::Unknown,
+                )
+            })
+            .collect();
+        let code = |s: Status| match s {
+            Status::Unknown => 0,
+            Status::Inside => 1,
+            Status::Outside => 2,
+        };
+        let (verdicts, votes) =
+            crate::gpu::cpsv::seeds_and_votes(gpu, mesh, settings.pixels as u32, seeds, &boxes, |b| {
+                code(verdict(b, settings))
+            })?;
+        let verdicts = verdicts
+            .into_iter()
+            .map(|v| [Status::Unknown, Status::Inside, Status::Outside][v as usize])
+            .collect();
+        return Ok((verdicts, votes));
+    }
+    let maps: Vec<CubeMap> = seeds
+        .par_iter()
+        .map(|seed| CubeMap::render(mesh, seed.eye, seed.near, settings.pixels))
+        .collect();
+    let verdicts: Vec<Status> = maps.iter().map(|m| verdict(&m.backs(), settings)).collect();
+    let voters: Vec<(&Seed, &CubeMap, Status)> = seeds
+        .iter()
+        .zip(&maps)
+        .zip(&verdicts)
+        .filter(|(_, v)| **v != Status::Unknown)
+        .map(|((s, m), v)| (s, m, *v))
+        .collect();
+    let votes = (0..cells.len())
+        .into_par_iter()
+        .map(|c| {
+            let mut got = [0u32; 2];
+            if status[c] == Status::Unknown {
+                let corners = cells[c].corners(grid);
+                for (seed, map, verdict) in &voters {
+                    if corners.iter().all(|&p| map.sees(seed.eye, p)) {
+                        got[usize::from(*verdict == Status::Outside)] += 1;
+                    }
+                }
+            }
+            got
+        })
+        .collect();
+    Ok((verdicts, votes))
+}
+
+/// Classifies every voxel: `solid` is true inside and on the surface (`surface`). The cube
+/// maps and votes run on `gpu` when given.
+pub fn classify(
+    mesh: &Mesh,
+    grid: &Grid,
+    surface: &[bool],
+    settings: &CpsvSettings,
+    gpu: Option<&Gpu>,
+) -> Result<(Vec<bool>, CpsvStats), GpuError> {
     // The mesh's bounds in voxel units: cells are split along them too, and those outside
     // (the grid's padding, and whatever straddles the bounds at one voxel) are outside.
     let (lo, hi) = mesh.bounds();
@@ -189,37 +274,30 @@ pub fn classify(mesh: &Mesh, grid: &Grid, surface: &[bool], settings: &CpsvSetti
             .expect("the batch came from here")
             + 1;
         seeds += batch.len();
-        let rendered: Vec<(usize, DVec3, CubeMap, Status)> = batch
-            .par_iter()
+        let seeded: Vec<Seed> = batch
+            .iter()
             .map(|&i| {
                 let cell = &cells[i];
-                let eye = cell.centre(grid);
-                let near = 0.5 * grid.voxel_size * (0..3).map(|a| cell.hi[a] - cell.lo[a]).min().unwrap() as f64;
-                let map = CubeMap::render(mesh, eye, near, settings.pixels);
-                let verdict = map.verdict(settings);
-                (i, eye, map, verdict)
-            })
-            .collect();
-        for (i, _, _, verdict) in &rendered {
-            status[*i] = *verdict;
-        }
-        let voters: Vec<&(usize, DVec3, CubeMap, Status)> =
-            rendered.iter().filter(|r| r.3 != Status::Unknown).collect();
-        let cast: Vec<(usize, [u32; 2])> = (0..cells.len())
-            .into_par_iter()
-            .filter(|&c| status[c] == Status::Unknown)
-            .filter_map(|c| {
-                let corners = cells[c].corners(grid);
-                let mut got = [0u32; 2];
-                for (_, eye, map, verdict) in &voters {
-                    if corners.iter().all(|&p| map.sees(*eye, p)) {
-                        got[usize::from(*verdict == Status::Outside)] += 1;
-                    }
+                let smallest = (0..3).map(|a| cell.hi[a] - cell.lo[a]).min().expect("three axes");
+                Seed {
+                    eye: cell.centre(grid),
+                    near: 0.5 * grid.voxel_size * smallest as f64,
                 }
-                (got != [0, 0]).then_some((c, got))
             })
             .collect();
-        for (c, got) in cast {
+        // The seeds are decided by their own view, not by votes.
+        let mut asking = status.clone();
+        for &i in &batch {
+            asking[i] = Status::Inside;
+        }
+        let (verdicts, cast) = seeds_and_votes(mesh, grid, &cells, &asking, &seeded, settings, gpu)?;
+        for (&i, verdict) in batch.iter().zip(verdicts) {
+            status[i] = verdict;
+        }
+        for (c, got) in cast.into_iter().enumerate() {
+            if got == [0, 0] {
+                continue;
+            }
             votes[c][0] += got[0];
             votes[c][1] += got[1];
             if votes[c][0] >= settings.votes && votes[c][0] >= votes[c][1] {
@@ -253,7 +331,7 @@ pub fn classify(mesh: &Mesh, grid: &Grid, surface: &[bool], settings: &CpsvSetti
             Status::Outside => {}
         }
     }
-    (solid, stats)
+    Ok((solid, stats))
 }
 
 /// The octree's empty cells: cubes of power-of-two size, split while they hold a surface voxel

@@ -25,7 +25,7 @@ pub enum InsideMethod {
     /// Crossing-count parity along columns: correct only for watertight meshes; the baseline.
     Parity,
     /// What the empty space sees: cube maps rendered from octree cells, votes between them
-    /// (the seed article's Complete Polygonal Scene Voxelization). CPU only so far.
+    /// (the seed article's Complete Polygonal Scene Voxelization).
     Cpsv,
 }
 
@@ -46,8 +46,7 @@ pub struct Classified {
 }
 
 /// Which voxel centres lie inside the solid, on `gpu` when given. `cpsv` decides whole cells of
-/// empty space (the `surface` voxels count as solid) and runs on the CPU: on a device it is
-/// [`GpuError::Unsupported`], for the caller to run it here.
+/// empty space (the `surface` voxels count as solid).
 pub fn classify(
     method: InsideMethod,
     mesh: &Mesh,
@@ -59,10 +58,7 @@ pub fn classify(
 ) -> Result<Classified, GpuError> {
     let solid = |solid| Classified { solid, cpsv: None };
     if method == InsideMethod::Cpsv {
-        if gpu.is_some() {
-            return Err(GpuError::Unsupported("cpsv has no GPU stage yet".into()));
-        }
-        let (solid, stats) = cpsv::classify(mesh, grid, surface, settings);
+        let (solid, stats) = cpsv::classify(mesh, grid, surface, settings, gpu)?;
         return Ok(Classified {
             solid,
             cpsv: Some(stats),

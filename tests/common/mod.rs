@@ -45,6 +45,20 @@ pub fn concat(parts: &[Mesh]) -> Mesh {
 #[allow(unused_imports)]
 pub use occluder_cook::mesh::shapes::torus;
 
+/// Solid voxels by winding or parity, which need neither the surface voxels nor cpsv's settings.
+pub fn solid(
+    method: occluder_cook::voxel::InsideMethod,
+    mesh: &Mesh,
+    topology: &occluder_cook::mesh::Topology,
+    grid: &occluder_cook::voxel::Grid,
+    gpu: Option<&occluder_cook::gpu::Gpu>,
+) -> Vec<bool> {
+    let cpsv = defaults().cook.cpsv();
+    occluder_cook::voxel::classify(method, mesh, topology, grid, &[], &cpsv, gpu)
+        .expect("classifies")
+        .solid
+}
+
 pub fn defaults() -> Settings {
     config::load(None, &[]).expect("defaults load")
 }

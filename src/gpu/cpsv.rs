@@ -1,0 +1,221 @@
+//! Host code for shaders/cpsv.wgsl: a batch of seeds' cube maps rendered (a render pass per
+//! face, the nearest surface's depth signed by its side), their back-face pixels counted by a
+//! compute pass, and the votes of the decided seeds cast by another. The twin is
+//! [`crate::voxel::cpsv`].
+
+use super::{Gpu, GpuError};
+use crate::eval::raster::View;
+use crate::mesh::Mesh;
+use glam::DVec3;
+use wgpu::util::DeviceExt;
+
+const SHADER: &str = include_str!("../../shaders/cpsv.wgsl");
+const IMAGE: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+
+/// `Params` in shaders/cpsv.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    pixels: u32,
+    row_floats: u32,
+    faces: u32,
+    cells: u32,
+    voters: u32,
+}
+
+/// `Voter` in shaders/cpsv.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Voter {
+    eye: [f32; 3],
+    near: f32,
+    first_face: u32,
+    verdict: u32,
+    pad: [u32; 2],
+}
+
+/// A seed: its cell's centre and the near plane at the cell's edge.
+pub struct Seed {
+    pub eye: DVec3,
+    pub near: f64,
+}
+
+/// Renders the seeds' cube maps of `mesh` (`pixels` a side), asks `verdict` for each seed from
+/// its back-face pixels per face (0 undecided, 1 inside, 2 outside), and counts for each cell
+/// (lowest and highest corner, and whether it is still unknown) the (inside, outside) votes of
+/// the decided seeds that see its eight corners. Returns the verdicts and the votes.
+pub fn seeds_and_votes(
+    gpu: &Gpu,
+    mesh: &Mesh,
+    pixels: u32,
+    seeds: &[Seed],
+    cells: &[([DVec3; 2], bool)],
+    verdict: impl Fn(&[u32]) -> u32,
+) -> Result<(Vec<u32>, Vec<[u32; 2]>), GpuError> {
+    gpu.run(|gpu| {
+        let (lo, hi) = mesh.bounds();
+        let origin = ((lo + hi) * 0.5).as_dvec3();
+        let local = |p: DVec3| (p - origin).as_vec3().to_array();
+        let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| local(p.as_dvec3())).collect();
+        let init = |contents: &[u8], usage| {
+            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: None,
+                contents,
+                usage,
+            })
+        };
+        let vertices = init(bytemuck::cast_slice(&positions), wgpu::BufferUsages::VERTEX);
+        let indices = init(bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::INDEX);
+        // Both sides drawn (which one shows is the point), nearest kept: reversed depth.
+        let pipeline = super::mesh_pipeline(gpu, SHADER, wgpu::CompareFunction::Greater, Some(("side", IMAGE)));
+        let faces = seeds.len() as u32 * 6;
+        let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let image_bytes = u64::from(row) * u64::from(pixels);
+        let images = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("cpsv faces"),
+            size: image_bytes * u64::from(faces),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let image = super::render_target(
+            gpu,
+            IMAGE,
+            pixels,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        );
+        let depth = super::render_target(gpu, super::DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT);
+        let (image_view, depth_view) = (
+            image.create_view(&Default::default()),
+            depth.create_view(&Default::default()),
+        );
+        let mut clips: Vec<[f32; 16]> = Vec::with_capacity(faces as usize);
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        for (s, seed) in seeds.iter().enumerate() {
+            for (f, view) in View::cube_map(seed.eye, pixels as usize, seed.near).iter().enumerate() {
+                let clip = view
+                    .perspective_clip_matrix(origin, seed.near)
+                    .expect("cube-map faces are perspective")
+                    .as_mat4()
+                    .to_cols_array();
+                clips.push(clip);
+                let camera = init(bytemuck::cast_slice(&clip), wgpu::BufferUsages::UNIFORM);
+                let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: None,
+                    layout: &pipeline.get_bind_group_layout(0),
+                    entries: &[wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: camera.as_entire_binding(),
+                    }],
+                });
+                {
+                    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                        label: Some("cpsv face"),
+                        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                            view: &image_view,
+                            depth_slice: None,
+                            resolve_target: None,
+                            ops: wgpu::Operations {
+                                // Nothing drawn: infinitely far, not a back face.
+                                load: wgpu::LoadOp::Clear(wgpu::Color {
+                                    r: f64::from(f32::MAX),
+                                    g: 0.0,
+                                    b: 0.0,
+                                    a: 0.0,
+                                }),
+                                store: wgpu::StoreOp::Store,
+                            },
+                        })],
+                        // Reversed depth (near / w): cleared to 0, nearer is greater.
+                        depth_stencil_attachment: Some(super::depth_attachment(&depth_view, 0.0, false)),
+                        timestamp_writes: None,
+                        occlusion_query_set: None,
+                        multiview_mask: None,
+                    });
+                    pass.set_pipeline(&pipeline);
+                    pass.set_bind_group(0, &bind_group, &[]);
+                    pass.set_vertex_buffer(0, vertices.slice(..));
+                    pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(0..mesh.triangles.len() as u32 * 3, 0, 0..1);
+                }
+                encoder.copy_texture_to_buffer(
+                    image.as_image_copy(),
+                    wgpu::TexelCopyBufferInfo {
+                        buffer: &images,
+                        layout: wgpu::TexelCopyBufferLayout {
+                            offset: image_bytes * (s * 6 + f) as u64,
+                            bytes_per_row: Some(row),
+                            rows_per_image: None,
+                        },
+                    },
+                    image.size(),
+                );
+            }
+        }
+        gpu.queue.submit([encoder.finish()]);
+
+        let mut params = Params {
+            pixels,
+            row_floats: row / 4,
+            faces,
+            cells: cells.len() as u32,
+            voters: 0,
+        };
+        let backs = gpu.zeroed(u64::from(faces) * 4);
+        let groups = (pixels * pixels * faces).div_ceil(64);
+        let count_params = gpu.upload(&[params]);
+        gpu.dispatch(
+            SHADER,
+            "count_backs",
+            &[(1, &count_params), (2, &images), (3, &backs)],
+            groups,
+        );
+        let backs: Vec<u32> = gpu.read(&backs)?;
+        let verdicts: Vec<u32> = backs.chunks(6).map(&verdict).collect();
+
+        let voters: Vec<Voter> = seeds
+            .iter()
+            .zip(&verdicts)
+            .enumerate()
+            .filter(|(_, (_, v))| **v != 0)
+            .map(|(s, (seed, &v))| Voter {
+                eye: local(seed.eye),
+                near: seed.near as f32,
+                first_face: s as u32 * 6,
+                verdict: v,
+                pad: [0; 2],
+            })
+            .collect();
+        if voters.is_empty() || cells.is_empty() {
+            return Ok((verdicts, vec![[0; 2]; cells.len()]));
+        }
+        params.voters = voters.len() as u32;
+        let corners: Vec<[f32; 4]> = cells
+            .iter()
+            .flat_map(|([lo, hi], unknown)| {
+                let [a, b] = [local(*lo), local(*hi)];
+                [
+                    [a[0], a[1], a[2], f32::from(u8::from(*unknown))],
+                    [b[0], b[1], b[2], 0.0],
+                ]
+            })
+            .collect();
+        let vote_params = gpu.upload(&[params]);
+        let (voter_buffer, clip_buffer, cell_buffer) = (gpu.upload(&voters), gpu.upload(&clips), gpu.upload(&corners));
+        let votes = gpu.zeroed(cells.len() as u64 * 8);
+        gpu.dispatch(
+            SHADER,
+            "vote",
+            &[
+                (1, &vote_params),
+                (2, &images),
+                (4, &voter_buffer),
+                (5, &clip_buffer),
+                (6, &cell_buffer),
+                (7, &votes),
+            ],
+            (cells.len() as u32).div_ceil(64),
+        );
+        let votes: Vec<[u32; 2]> = gpu.read(&votes)?;
+        Ok((verdicts, votes))
+    })
+}

@@ -7,7 +7,6 @@ use super::{Gpu, GpuError};
 use crate::eval::raster::View;
 use crate::mesh::Mesh;
 use glam::DVec3;
-use wgpu::util::DeviceExt;
 
 const SHADER: &str = include_str!("../../shaders/cpsv.wgsl");
 const IMAGE: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
@@ -53,19 +52,9 @@ pub fn seeds_and_votes(
     verdict: impl Fn(&[u32]) -> u32,
 ) -> Result<(Vec<u32>, Vec<[u32; 2]>), GpuError> {
     gpu.run(|gpu| {
-        let (lo, hi) = mesh.bounds();
-        let origin = ((lo + hi) * 0.5).as_dvec3();
+        let buffers = super::MeshBuffers::new(gpu, mesh);
+        let origin = buffers.origin;
         let local = |p: DVec3| (p - origin).as_vec3().to_array();
-        let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| local(p.as_dvec3())).collect();
-        let init = |contents: &[u8], usage| {
-            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: None,
-                contents,
-                usage,
-            })
-        };
-        let vertices = init(bytemuck::cast_slice(&positions), wgpu::BufferUsages::VERTEX);
-        let indices = init(bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::INDEX);
         // Both sides drawn (which one shows is the point), nearest kept: reversed depth.
         let pipeline = super::mesh_pipeline(gpu, SHADER, wgpu::CompareFunction::Greater, Some(("side", IMAGE)));
         let faces = seeds.len() as u32 * 6;
@@ -98,45 +87,24 @@ pub fn seeds_and_votes(
                     .as_mat4()
                     .to_cols_array();
                 clips.push(clip);
-                let camera = init(bytemuck::cast_slice(&clip), wgpu::BufferUsages::UNIFORM);
-                let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: None,
-                    layout: &pipeline.get_bind_group_layout(0),
-                    entries: &[wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: camera.as_entire_binding(),
-                    }],
-                });
-                {
-                    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                        label: Some("cpsv face"),
-                        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                            view: &image_view,
-                            depth_slice: None,
-                            resolve_target: None,
-                            ops: wgpu::Operations {
-                                // Nothing drawn: infinitely far, not a back face.
-                                load: wgpu::LoadOp::Clear(wgpu::Color {
-                                    r: f64::from(f32::MAX),
-                                    g: 0.0,
-                                    b: 0.0,
-                                    a: 0.0,
-                                }),
-                                store: wgpu::StoreOp::Store,
-                            },
-                        })],
-                        // Reversed depth (near / w): cleared to 0, nearer is greater.
-                        depth_stencil_attachment: Some(super::depth_attachment(&depth_view, 0.0, false)),
-                        timestamp_writes: None,
-                        occlusion_query_set: None,
-                        multiview_mask: None,
-                    });
-                    pass.set_pipeline(&pipeline);
-                    pass.set_bind_group(0, &bind_group, &[]);
-                    pass.set_vertex_buffer(0, vertices.slice(..));
-                    pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
-                    pass.draw_indexed(0..mesh.triangles.len() as u32 * 3, 0, 0..1);
-                }
+                let color = wgpu::RenderPassColorAttachment {
+                    view: &image_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        // Nothing drawn: infinitely far, not a back face.
+                        load: wgpu::LoadOp::Clear(wgpu::Color {
+                            r: f64::from(f32::MAX),
+                            g: 0.0,
+                            b: 0.0,
+                            a: 0.0,
+                        }),
+                        store: wgpu::StoreOp::Store,
+                    },
+                };
+                // Reversed depth (near / w): cleared to 0, nearer is greater.
+                let depth = super::depth_attachment(&depth_view, 0.0, false);
+                buffers.draw(gpu, &mut encoder, &pipeline, &clip, Some(color), depth);
                 encoder.copy_texture_to_buffer(
                     image.as_image_copy(),
                     wgpu::TexelCopyBufferInfo {

@@ -205,6 +205,80 @@ pub fn depth_attachment(
     }
 }
 
+/// A mesh on the device for the render stages: positions relative to the centre of its bounds
+/// (which keeps f32 precise far from the world's origin) and indices.
+pub(crate) struct MeshBuffers {
+    pub origin: glam::DVec3,
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    corners: u32,
+}
+
+impl MeshBuffers {
+    pub fn new(gpu: &Gpu, mesh: &crate::mesh::Mesh) -> MeshBuffers {
+        let (lo, hi) = mesh.bounds();
+        let origin = ((lo + hi) * 0.5).as_dvec3();
+        let positions: Vec<[f32; 3]> = mesh
+            .positions
+            .iter()
+            .map(|p| (p.as_dvec3() - origin).as_vec3().to_array())
+            .collect();
+        let init = |contents: &[u8], usage| {
+            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: None,
+                contents,
+                usage,
+            })
+        };
+        MeshBuffers {
+            origin,
+            vertices: init(bytemuck::cast_slice(&positions), wgpu::BufferUsages::VERTEX),
+            indices: init(bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::INDEX),
+            corners: mesh.triangles.len() as u32 * 3,
+        }
+    }
+
+    /// Records a render pass drawing the mesh through `pipeline`, whose binding 0 is `clip`
+    /// (clip space from positions relative to [`MeshBuffers::origin`]).
+    pub fn draw(
+        &self,
+        gpu: &Gpu,
+        encoder: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::RenderPipeline,
+        clip: &[f32; 16],
+        color: Option<wgpu::RenderPassColorAttachment>,
+        depth: wgpu::RenderPassDepthStencilAttachment,
+    ) {
+        let camera = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("camera"),
+            contents: bytemuck::cast_slice(clip),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("camera"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: camera.as_entire_binding(),
+            }],
+        });
+        let colors: Vec<_> = color.into_iter().map(Some).collect();
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: None,
+            color_attachments: &colors,
+            depth_stencil_attachment: Some(depth),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.set_vertex_buffer(0, self.vertices.slice(..));
+        pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint32);
+        pass.draw_indexed(0..self.corners, 0, 0..1);
+    }
+}
+
 /// A square render target of one layer.
 pub(crate) fn render_target(
     gpu: &Gpu,

@@ -4,7 +4,6 @@
 use super::{Gpu, GpuError};
 use crate::eval::raster::View;
 use crate::mesh::Mesh;
-use wgpu::util::DeviceExt;
 
 const SHADER: &str = include_str!("../../shaders/raster.wgsl");
 
@@ -15,23 +14,8 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
         return Ok(Vec::new());
     };
     gpu.run(|gpu| {
-        // Positions relative to the mesh's centre keep f32 precise far from the origin.
-        let (lo, hi) = mesh.bounds();
-        let origin = ((lo + hi) * 0.5).as_dvec3();
-        let positions: Vec<[f32; 3]> = mesh
-            .positions
-            .iter()
-            .map(|p| (p.as_dvec3() - origin).as_vec3().to_array())
-            .collect();
-        let init = |contents: &[u8], usage| {
-            gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: None,
-                contents,
-                usage,
-            })
-        };
-        let vertices = init(bytemuck::cast_slice(&positions), wgpu::BufferUsages::VERTEX);
-        let indices = init(bytemuck::cast_slice(&mesh.triangles), wgpu::BufferUsages::INDEX);
+        let buffers = super::MeshBuffers::new(gpu, mesh);
+        let origin = buffers.origin;
         // Both sides, as the twin draws them.
         let pipeline = super::mesh_pipeline(gpu, SHADER, wgpu::CompareFunction::Less, None);
         let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
@@ -50,33 +34,8 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
                 .ortho_clip_matrix(origin, view.ortho_margin(mesh))
                 .ok_or_else(|| GpuError::Unsupported("GPU depth images are orthographic only".into()))?
                 .as_mat4();
-            let camera = init(
-                bytemuck::cast_slice(&matrix.to_cols_array()),
-                wgpu::BufferUsages::UNIFORM,
-            );
-            let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: None,
-                layout: &pipeline.get_bind_group_layout(0),
-                entries: &[wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: camera.as_entire_binding(),
-                }],
-            });
-            {
-                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                    label: Some("depth"),
-                    color_attachments: &[],
-                    depth_stencil_attachment: Some(super::depth_attachment(&target_view, 1.0, true)),
-                    timestamp_writes: None,
-                    occlusion_query_set: None,
-                    multiview_mask: None,
-                });
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &bind_group, &[]);
-                pass.set_vertex_buffer(0, vertices.slice(..));
-                pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..mesh.triangles.len() as u32 * 3, 0, 0..1);
-            }
+            let depth = super::depth_attachment(&target_view, 1.0, true);
+            buffers.draw(gpu, &mut encoder, &pipeline, &matrix.to_cols_array(), None, depth);
             encoder.copy_texture_to_buffer(
                 wgpu::TexelCopyTextureInfo {
                     texture: &target,

@@ -39,24 +39,62 @@ pub struct Seed {
     pub near: f64,
 }
 
-/// Renders the seeds' cube maps of `mesh` (`pixels` a side), asks `verdict` for each seed from
-/// its back-face pixels per face (0 undecided, 1 inside, 2 outside), and counts for each cell
-/// (lowest and highest corner, and whether it is still unknown) the (inside, outside) votes of
-/// the decided seeds that see its eight corners. Returns the verdicts and the votes.
-pub fn seeds_and_votes(
-    gpu: &Gpu,
-    mesh: &Mesh,
+/// A mesh ready for cube maps on the device, made once a classification: its buffers, the face
+/// pipeline, and the cells' corners (relative to the mesh's origin).
+pub struct CubeMaps<'a> {
+    gpu: &'a Gpu,
+    buffers: super::MeshBuffers,
+    pipeline: wgpu::RenderPipeline,
     pixels: u32,
-    seeds: &[Seed],
-    cells: &[([DVec3; 2], bool)],
-    verdict: impl Fn(&[u32]) -> u32,
-) -> Result<(Vec<u32>, Vec<[u32; 2]>), GpuError> {
-    gpu.run(|gpu| {
-        let buffers = super::MeshBuffers::new(gpu, mesh);
+    corners: Vec<[[f32; 3]; 2]>,
+}
+
+impl<'a> CubeMaps<'a> {
+    /// `mesh` with cube maps `pixels` a side, and the cells (lowest and highest corner) that
+    /// seeds vote in.
+    pub fn new(gpu: &'a Gpu, mesh: &Mesh, pixels: u32, cells: &[[DVec3; 2]]) -> Result<CubeMaps<'a>, GpuError> {
+        gpu.run(|device| {
+            let buffers = super::MeshBuffers::new(device, mesh);
+            let origin = buffers.origin;
+            let corners = cells
+                .iter()
+                .map(|c| c.map(|p| (p - origin).as_vec3().to_array()))
+                .collect();
+            Ok(CubeMaps {
+                gpu,
+                buffers,
+                // Both sides drawn (which one shows is the point), nearest kept: reversed depth.
+                pipeline: super::mesh_pipeline(device, SHADER, wgpu::CompareFunction::Greater, Some(("side", IMAGE))),
+                pixels,
+                corners,
+            })
+        })
+    }
+
+    /// Renders the seeds' cube maps, asks `verdict` for each seed from its back-face pixels per
+    /// face (0 undecided, 1 inside, 2 outside), and counts for each cell still `unknown` the
+    /// (inside, outside) votes of the decided seeds that see its eight corners. Returns the
+    /// verdicts and the votes.
+    pub fn seeds_and_votes(
+        &self,
+        seeds: &[Seed],
+        unknown: &[bool],
+        verdict: impl Fn(&[u32]) -> u32,
+    ) -> Result<(Vec<u32>, Vec<[u32; 2]>), GpuError> {
+        self.gpu.run(|gpu| self.batch(gpu, seeds, unknown, verdict))
+    }
+
+    fn batch(
+        &self,
+        gpu: &Gpu,
+        seeds: &[Seed],
+        unknown: &[bool],
+        verdict: impl Fn(&[u32]) -> u32,
+    ) -> Result<(Vec<u32>, Vec<[u32; 2]>), GpuError> {
+        let (buffers, pipeline, pixels) = (&self.buffers, &self.pipeline, self.pixels);
         let origin = buffers.origin;
         let local = |p: DVec3| (p - origin).as_vec3().to_array();
-        // Both sides drawn (which one shows is the point), nearest kept: reversed depth.
-        let pipeline = super::mesh_pipeline(gpu, SHADER, wgpu::CompareFunction::Greater, Some(("side", IMAGE)));
+        let cells = &self.corners;
         let faces = seeds.len() as u32 * 6;
         let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let image_bytes = u64::from(row) * u64::from(pixels);
@@ -104,7 +142,7 @@ pub fn seeds_and_votes(
                 };
                 // Reversed depth (near / w): cleared to 0, nearer is greater.
                 let depth = super::depth_attachment(&depth_view, 0.0, false);
-                buffers.draw(gpu, &mut encoder, &pipeline, &clip, Some(color), depth);
+                buffers.draw(gpu, &mut encoder, pipeline, &clip, Some(color), depth);
                 encoder.copy_texture_to_buffer(
                     image.as_image_copy(),
                     wgpu::TexelCopyBufferInfo {
@@ -159,10 +197,10 @@ pub fn seeds_and_votes(
         params.voters = voters.len() as u32;
         let corners: Vec<[f32; 4]> = cells
             .iter()
-            .flat_map(|([lo, hi], unknown)| {
-                let [a, b] = [local(*lo), local(*hi)];
+            .zip(unknown)
+            .flat_map(|([a, b], &unknown)| {
                 [
-                    [a[0], a[1], a[2], f32::from(u8::from(*unknown))],
+                    [a[0], a[1], a[2], f32::from(u8::from(unknown))],
                     [b[0], b[1], b[2], 0.0],
                 ]
             })
@@ -185,5 +223,5 @@ pub fn seeds_and_votes(
         );
         let votes: Vec<[u32; 2]> = gpu.read(&votes)?;
         Ok((verdicts, votes))
-    })
+    }
 }

@@ -15,7 +15,7 @@
 
 use super::Grid;
 use crate::eval::raster::{View, rasterize};
-use crate::gpu::cpsv::Seed;
+use crate::gpu::cpsv::{CubeMaps, Seed};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::DVec3;
@@ -165,8 +165,8 @@ fn verdict(backs: &[u32], settings: &CpsvSettings) -> Status {
 }
 
 /// One batch of seeds: each seed's verdict, and each cell's (inside, outside) votes from the
-/// decided seeds that see all its corners (none for cells not unknown). On `gpu` when given
-/// (shaders/cpsv.wgsl), else here.
+/// decided seeds that see all its corners (none for cells not unknown). On the device's
+/// `cube_maps` when given (shaders/cpsv.wgsl), else here.
 fn seeds_and_votes(
     mesh: &Mesh,
     grid: &Grid,
@@ -174,28 +174,16 @@ fn seeds_and_votes(
     status: &[Status],
     seeds: &[Seed],
     settings: &CpsvSettings,
-    gpu: Option<&Gpu>,
+    cube_maps: Option<&CubeMaps>,
 ) -> Result<(Vec<Status>, Vec<[u32; 2]>), GpuError> {
-    if let Some(gpu) = gpu {
-        let boxes: Vec<([DVec3; 2], bool)> = cells
-            .iter()
-            .zip(status)
-            .map(|(c, s)| {
-                (
-                    [c.lo, c.hi].map(|v| grid.to_world(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64))),
-                    *s == Status::Unknown,
-                )
-            })
-            .collect();
+    if let Some(cube_maps) = cube_maps {
+        let unknown: Vec<bool> = status.iter().map(|s| *s == Status::Unknown).collect();
         let code = |s: Status| match s {
             Status::Unknown => 0,
             Status::Inside => 1,
             Status::Outside => 2,
         };
-        let (verdicts, votes) =
-            crate::gpu::cpsv::seeds_and_votes(gpu, mesh, settings.pixels as u32, seeds, &boxes, |b| {
-                code(verdict(b, settings))
-            })?;
+        let (verdicts, votes) = cube_maps.seeds_and_votes(seeds, &unknown, |b| code(verdict(b, settings)))?;
         let verdicts = verdicts
             .into_iter()
             .map(|v| [Status::Unknown, Status::Inside, Status::Outside][v as usize])
@@ -255,6 +243,16 @@ pub fn classify(
         })
         .collect();
     let mut votes = vec![[0u32; 2]; cells.len()];
+    let cube_maps = match gpu {
+        Some(gpu) => {
+            let corners: Vec<[DVec3; 2]> = cells
+                .iter()
+                .map(|c| [c.lo, c.hi].map(|v| grid.to_world(DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64))))
+                .collect();
+            Some(CubeMaps::new(gpu, mesh, settings.pixels as u32, &corners)?)
+        }
+        None => None,
+    };
     // Largest first: a big cell sees much of what is around it.
     let mut order: Vec<usize> = (0..cells.len()).filter(|&i| status[i] == Status::Unknown).collect();
     order.sort_by_key(|&i| std::cmp::Reverse(cells[i].voxels()));
@@ -285,12 +283,12 @@ pub fn classify(
                 }
             })
             .collect();
-        // The seeds are decided by their own view, not by votes.
-        let mut asking = status.clone();
+        // The seeds are decided by their own view, not by votes: out of the vote until their
+        // verdict replaces this mark.
         for &i in &batch {
-            asking[i] = Status::Inside;
+            status[i] = Status::Inside;
         }
-        let (verdicts, cast) = seeds_and_votes(mesh, grid, &cells, &asking, &seeded, settings, gpu)?;
+        let (verdicts, cast) = seeds_and_votes(mesh, grid, &cells, &status, &seeded, settings, cube_maps.as_ref())?;
         for (&i, verdict) in batch.iter().zip(verdicts) {
             status[i] = verdict;
         }

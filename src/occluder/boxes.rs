@@ -19,6 +19,10 @@ impl VoxelBox {
     pub fn voxels(&self) -> usize {
         (0..3).map(|k| self.hi[k] - self.lo[k]).product()
     }
+
+    fn overlaps(&self, other: &VoxelBox) -> bool {
+        (0..3).all(|k| self.lo[k] < other.hi[k] && other.lo[k] < self.hi[k])
+    }
 }
 
 pub struct ExpansionSettings {
@@ -31,38 +35,33 @@ pub struct ExpansionSettings {
 /// Boxes that fill `inner` without overlapping, largest first.
 pub fn expand(inner: &[bool], dims: [usize; 3], settings: &ExpansionSettings) -> Vec<VoxelBox> {
     let total = inner.iter().filter(|&&v| v).count();
-    let mut free = inner.to_vec();
-    let mut boxes = Vec::new();
+    let mut free = FreeSpace {
+        inner: SummedVolume::new(inner, dims),
+        placed: Vec::new(),
+    };
     let mut claimed = 0usize;
     // Claiming a box only brings the outside nearer, so the distance field is updated with the
     // distance to each new box rather than recomputed.
-    let mut distance = squared_distance_to_outside(&free, dims);
-    while boxes.len() < settings.max_boxes && (claimed as f64) < settings.target_coverage * total as f64 {
+    let mut distance = squared_distance_to_outside(inner, dims);
+    while free.placed.len() < settings.max_boxes && (claimed as f64) < settings.target_coverage * total as f64 {
+        // The order is total (ties go to the lower index), so the parallel search is deterministic.
         let Some((seed, _)) = distance
-            .iter()
+            .par_iter()
             .enumerate()
             .filter(|(_, d)| **d > 0.0)
             .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
         else {
             break;
         };
-        let table = SummedVolume::new(&free, dims);
-        let b = grow(&table, coords(seed, dims));
+        let b = grow(&free, coords(seed, dims));
         if (b.voxels() as f64) < settings.min_box_gain * total as f64 || b.voxels() < settings.min_box_voxels {
             break;
         }
-        for x in b.lo[0]..b.hi[0] {
-            for y in b.lo[1]..b.hi[1] {
-                for z in b.lo[2]..b.hi[2] {
-                    free[(x * dims[1] + y) * dims[2] + z] = false;
-                }
-            }
-        }
         lower_to_box(&mut distance, dims, &b);
         claimed += b.voxels();
-        boxes.push(b);
+        free.placed.push(b);
     }
-    boxes
+    free.placed
 }
 
 /// distance = min(distance, squared voxel distance to the nearest voxel of `b`).
@@ -88,21 +87,21 @@ fn coords(index: usize, dims: [usize; 3]) -> [usize; 3] {
     [xy / dims[1], xy % dims[1], z]
 }
 
-/// Counts of free voxels over any box in O(1).
+/// Counts of a set's voxels over any box in O(1).
 struct SummedVolume {
     sums: Vec<u32>,
     dims: [usize; 3],
 }
 
 impl SummedVolume {
-    fn new(free: &[bool], dims: [usize; 3]) -> Self {
+    fn new(set: &[bool], dims: [usize; 3]) -> Self {
         let [sx, sy, sz] = dims.map(|d| d + 1);
         let mut sums = vec![0u32; sx * sy * sz];
         let at = |x: usize, y: usize, z: usize| (x * sy + y) * sz + z;
         for x in 1..sx {
             for y in 1..sy {
                 for z in 1..sz {
-                    let v = u32::from(free[((x - 1) * dims[1] + y - 1) * dims[2] + z - 1]);
+                    let v = u32::from(set[((x - 1) * dims[1] + y - 1) * dims[2] + z - 1]);
                     sums[at(x, y, z)] = v + sums[at(x - 1, y, z)] + sums[at(x, y - 1, z)] + sums[at(x, y, z - 1)]
                         - sums[at(x - 1, y - 1, z)]
                         - sums[at(x - 1, y, z - 1)]
@@ -125,13 +124,26 @@ impl SummedVolume {
     fn is_free(&self, b: &VoxelBox) -> bool {
         self.count(b) == b.voxels()
     }
+}
+
+/// The inner voxels not yet claimed: the inner set's summed volume less the placed boxes, which
+/// are few, so claiming a box costs nothing and nothing is rebuilt.
+struct FreeSpace {
+    inner: SummedVolume,
+    placed: Vec<VoxelBox>,
+}
+
+impl FreeSpace {
+    fn is_free(&self, b: &VoxelBox) -> bool {
+        self.inner.is_free(b) && !self.placed.iter().any(|p| p.overlaps(b))
+    }
 
     /// The box grown by one layer on face (axis, positive side), if that layer is free.
     fn grown(&self, b: &VoxelBox, axis: usize, positive: bool) -> Option<VoxelBox> {
         let mut slab = *b;
         let mut out = *b;
         if positive {
-            if b.hi[axis] >= self.dims[axis] {
+            if b.hi[axis] >= self.inner.dims[axis] {
                 return None;
             }
             slab.lo[axis] = b.hi[axis];
@@ -152,14 +164,14 @@ impl SummedVolume {
 const FACES: [(usize, bool); 6] = [(0, false), (0, true), (1, false), (1, true), (2, false), (2, true)];
 
 /// The largest of the boxes that several growth orders reach from `seed`.
-fn grow(table: &SummedVolume, seed: [usize; 3]) -> VoxelBox {
+fn grow(free: &FreeSpace, seed: [usize; 3]) -> VoxelBox {
     let start = VoxelBox {
         lo: seed,
         hi: seed.map(|s| s + 1),
     };
-    let mut candidates = vec![grow_largest_slab_first(table, start), grow_round_robin(table, start)];
+    let mut candidates = vec![grow_largest_slab_first(free, start), grow_round_robin(free, start)];
     for order in [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]] {
-        candidates.push(grow_axis_order(table, start, order));
+        candidates.push(grow_axis_order(free, start, order));
     }
     // Stable choice on ties: the first candidate wins.
     candidates
@@ -170,10 +182,10 @@ fn grow(table: &SummedVolume, seed: [usize; 3]) -> VoxelBox {
 }
 
 /// Each step takes the face whose free slab is largest.
-fn grow_largest_slab_first(table: &SummedVolume, mut b: VoxelBox) -> VoxelBox {
+fn grow_largest_slab_first(free: &FreeSpace, mut b: VoxelBox) -> VoxelBox {
     while let Some(next) = FACES
         .iter()
-        .filter_map(|&(axis, positive)| table.grown(&b, axis, positive))
+        .filter_map(|&(axis, positive)| free.grown(&b, axis, positive))
         .max_by_key(|n| n.voxels())
     {
         b = next;
@@ -182,11 +194,11 @@ fn grow_largest_slab_first(table: &SummedVolume, mut b: VoxelBox) -> VoxelBox {
 }
 
 /// The uniform growth of the article: every face one layer per round.
-fn grow_round_robin(table: &SummedVolume, mut b: VoxelBox) -> VoxelBox {
+fn grow_round_robin(free: &FreeSpace, mut b: VoxelBox) -> VoxelBox {
     loop {
         let mut grew = false;
         for &(axis, positive) in &FACES {
-            if let Some(next) = table.grown(&b, axis, positive) {
+            if let Some(next) = free.grown(&b, axis, positive) {
                 b = next;
                 grew = true;
             }
@@ -199,14 +211,14 @@ fn grow_round_robin(table: &SummedVolume, mut b: VoxelBox) -> VoxelBox {
 
 /// Grow fully along the first axis (both sides alternately), then the second, then the third,
 /// and repeat until nothing moves.
-fn grow_axis_order(table: &SummedVolume, mut b: VoxelBox, order: [usize; 3]) -> VoxelBox {
+fn grow_axis_order(free: &FreeSpace, mut b: VoxelBox, order: [usize; 3]) -> VoxelBox {
     loop {
         let mut grew = false;
         for axis in order {
             loop {
                 let mut step = false;
                 for positive in [false, true] {
-                    if let Some(next) = table.grown(&b, axis, positive) {
+                    if let Some(next) = free.grown(&b, axis, positive) {
                         b = next;
                         step = true;
                     }

@@ -39,7 +39,7 @@ pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
 /// Cooks and evaluates every file, printing a row as each finishes.
 pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "mesh",
         "dev",
         "tris_in",
@@ -57,6 +57,7 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
         "expo_ms",
         "pieces_ms",
         "cook_ms",
+        "gpu_ms",
         "eval_ms"
     );
     files
@@ -98,8 +99,14 @@ fn print_row(name: &str, r: &Report) {
     let q = r.quality.as_ref().expect("bench always evaluates");
     let t = &r.timings_ms;
     let cook_ms = t.total() - t.get("eval");
+    // The device's own time for the cook's passes, eval left out like in cook_ms.
+    let device = &r.device_timings_ms;
+    let gpu_ms = match device.is_empty() {
+        true => "-".to_string(),
+        false => format!("{:.1}", device.total() - device.get("eval")),
+    };
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8} {:>8.1}",
         name,
         match (r.gpu_stages.is_empty(), r.gpu_stages.contains(&"inside")) {
             (true, _) => "cpu",
@@ -124,6 +131,7 @@ fn print_row(name: &str, r: &Report) {
             .map(|s| t.get(s))
             .sum::<f64>(),
         cook_ms,
+        gpu_ms,
         t.get("eval"),
     );
 }

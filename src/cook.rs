@@ -11,6 +11,7 @@ use crate::voxel::{self, Grid, InsideMethod, winding::WindingField};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// How long each stage took, in milliseconds, in pipeline order.
@@ -55,6 +56,10 @@ pub type Progress<'a> = &'a (dyn Fn(&str, f64) + Sync);
 /// Times the stages and reports each as it starts.
 struct Clock<'a> {
     timings: Timings,
+    /// The device's own time per stage, where it has timestamp queries.
+    device_timings: Timings,
+    /// The timed device handle, once open.
+    gpu: Option<Arc<gpu::Gpu>>,
     progress: Progress<'a>,
 }
 
@@ -64,17 +69,29 @@ impl Clock<'_> {
         (self.progress)(stage, done as f64 / STAGES.len() as f64);
         let start = Instant::now();
         let out = f();
-        let ms = start.elapsed().as_secs_f64() * 1e3;
-        // A stage that runs in several places adds up under one name.
-        match self.timings.0.iter_mut().find(|(s, _)| s == stage) {
-            Some((_, total)) => *total += ms,
-            None => self.timings.0.push((stage.to_string(), ms)),
+        self.timings.add(stage, start.elapsed().as_secs_f64() * 1e3);
+        match self.gpu.as_ref().map(|g| g.take_device_ms()) {
+            Some(Ok(Some(ms))) if ms > 0.0 => self.device_timings.add(stage, ms),
+            Some(Err(e)) => tracing::warn!(stage, "the device's pass times could not be read: {e}"),
+            _ => {}
         }
         out
     }
 }
 
 impl Timings {
+    /// A stage that runs in several places adds up under one name.
+    fn add(&mut self, stage: &str, ms: f64) {
+        match self.0.iter_mut().find(|(s, _)| s == stage) {
+            Some((_, total)) => *total += ms,
+            None => self.0.push((stage.to_string(), ms)),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
     pub fn total(&self) -> f64 {
         self.0.iter().map(|(_, ms)| ms).sum()
     }
@@ -98,7 +115,12 @@ pub struct Report {
     pub device: String,
     /// The stages that ran on that GPU.
     pub gpu_stages: Vec<&'static str>,
+    /// Wall-clock milliseconds per stage, waits for the device included.
     pub timings_ms: Timings,
+    /// The device's own milliseconds per stage: its passes, from timestamp queries. Empty on
+    /// the CPU and on adapters without timestamps.
+    #[serde(skip_serializing_if = "Timings::is_empty")]
+    pub device_timings_ms: Timings,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub quality: Option<Quality>,
     /// Why the occluder is empty or smaller than asked, in words.
@@ -219,13 +241,16 @@ pub fn cook_with_progress(
     let cook = &settings.cook;
     let mut timings = Clock {
         timings: Timings(vec![("ingest".into(), ingest_ms)]),
+        device_timings: Timings::default(),
+        gpu: None,
         progress,
     };
     let key = timings.time("key", || cache_key(&mesh, cook));
     let topology = timings.time("orient", || orient_closed_components(&mut mesh));
     // Opening the device and building its pipelines happens once a process.
     let placement = timings.time("device", || gpu::for_choice(cook.device))?;
-    let gpu = placement.gpu;
+    let gpu = placement.gpu.map(|g| Arc::new(g.timed()));
+    timings.gpu = gpu.clone();
     let mut notes: Vec<String> = placement.why_cpu.into_iter().collect();
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, cook.resolution);
@@ -458,6 +483,7 @@ pub fn cook_with_progress(
         device: gpu.as_ref().map_or("cpu".into(), |g| g.name()),
         gpu_stages,
         timings_ms: timings.timings,
+        device_timings_ms: timings.device_timings,
         quality,
         notes,
     };

@@ -1,7 +1,7 @@
 //! Coverage, false pixels and outside samples, as DESIGN.md defines them.
 
 use super::proximity::SurfaceIndex;
-use super::raster::{View, depth_image};
+use super::raster::{View, depth_images};
 use super::views::fibonacci_sphere;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
@@ -79,12 +79,7 @@ pub fn evaluate(
     // Inside views are all from where a player stands; outside ones are "below" when the
     // camera is under the object.
     let inside = settings.view_set == ViewSet::Inside;
-    let images = |mesh: &Mesh| -> Result<Vec<Vec<f32>>, GpuError> {
-        match gpu {
-            Some(gpu) if !inside && !mesh.triangles.is_empty() => crate::gpu::raster::depth_images(gpu, mesh, &views),
-            _ => Ok(views.par_iter().map(|view| depth_image(view, mesh)).collect()),
-        }
-    };
+    let images = |mesh: &Mesh| depth_images(&views, mesh, gpu);
     let (originals, occluders) = (images(original)?, images(occluder)?);
     let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = views
         .par_iter()

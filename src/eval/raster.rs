@@ -1,8 +1,10 @@
 //! Software rasterization at pixel centres: depth images of meshes and coverage masks of boxes,
 //! through orthographic cameras around a mesh or perspective cameras inside it.
 
+use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
+use rayon::prelude::*;
 
 #[derive(Clone, Copy, Debug)]
 enum Lens {
@@ -105,48 +107,32 @@ impl View {
         Some(glam::DMat4::from_cols_array_2d(&rows.map(|r| r.to_array())).transpose())
     }
 
-    /// For a GPU render of an orthographic view: the matrix from points relative to `origin`
-    /// to clip space, x and y as [`View::project`] has them over [-1, 1], and z its depth over
-    /// the framed diameter (2 × radius) widened by `margin` at both ends, in [0, 1]: a mesh
-    /// reaching out of the framed sphere (another tool's occluder) is not clipped. None for
+    /// For the GPU rasterizer (shaders/raster.wgsl): three rows taking a point relative to
+    /// `origin`, as (x, y, z, 1), to [`View::project`]'s pixel x, pixel y and depth. None for
     /// perspective views.
-    pub fn ortho_clip_matrix(&self, origin: DVec3, margin: f64) -> Option<glam::DMat4> {
+    pub fn ortho_rows(&self, origin: DVec3) -> Option<[[f64; 4]; 3]> {
         let Lens::Orthographic { center, radius } = self.lens else {
             return None;
         };
-        let c = center - origin;
-        let row = |v: DVec3, scale: f64, offset: f64| {
-            let v = v * scale;
-            glam::DVec4::new(v.x, v.y, v.z, offset - v.dot(c))
+        let scale = self.pixels as f64 / 2.0 / radius;
+        let offset = origin - center;
+        let row = |axis: DVec3, scale: f64, constant: f64| {
+            let v = axis * scale;
+            [v.x, v.y, v.z, offset.dot(axis) * scale + constant]
         };
-        let reach = radius + margin;
-        let rows = [
-            row(self.right, 1.0 / radius, 0.0),
-            row(self.up, 1.0 / radius, 0.0),
-            row(-self.dir, 0.5 / reach, 0.5),
-            glam::DVec4::W,
-        ];
-        Some(glam::DMat4::from_cols_array_2d(&rows.map(|r| r.to_array())).transpose())
+        Some([
+            row(self.right, scale, radius * scale),
+            row(self.up, scale, radius * scale),
+            row(-self.dir, 1.0, radius),
+        ])
     }
 
-    /// The depth an orthographic view's GPU depth buffer value stands for (see
-    /// [`View::ortho_clip_matrix`], with the same `margin`).
-    pub fn ortho_depth(&self, buffer: f32, margin: f64) -> Option<f32> {
+    /// Pixels per unit of length of an orthographic view; None for perspective views.
+    pub fn ortho_scale(&self) -> Option<f64> {
         match self.lens {
-            Lens::Orthographic { radius, .. } => Some((f64::from(buffer) * 2.0 * (radius + margin) - margin) as f32),
+            Lens::Orthographic { radius, .. } => Some(self.pixels as f64 / 2.0 / radius),
             Lens::Perspective { .. } => None,
         }
-    }
-
-    /// How far `mesh` reaches out of the sphere an orthographic view frames (0 inside it).
-    pub fn ortho_margin(&self, mesh: &crate::mesh::Mesh) -> f64 {
-        let Lens::Orthographic { center, radius } = self.lens else {
-            return 0.0;
-        };
-        let (lo, hi) = mesh.bounds();
-        let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
-        let farthest = (center - lo).abs().max((hi - center).abs()).length();
-        (farthest - radius).max(0.0)
     }
 
     /// The depth tolerance of "nearer than" tests: 1e-4 of the framed diameter.
@@ -308,6 +294,18 @@ pub fn depth_image(view: &View, mesh: &Mesh) -> Vec<f32> {
     let mut depth = vec![f32::INFINITY; view.pixels * view.pixels];
     rasterize_mesh(view, mesh, |i, d| depth[i] = depth[i].min(d as f32));
     depth
+}
+
+/// Depth images of `mesh` in `views`: on `gpu` where one is given and can draw them
+/// (orthographic views, a mesh within one storage binding), else on the CPU.
+pub fn depth_images(views: &[View], mesh: &Mesh, gpu: Option<&Gpu>) -> Result<Vec<Vec<f32>>, GpuError> {
+    if let Some(gpu) = gpu {
+        match crate::gpu::raster::depth_images(gpu, mesh, views) {
+            Err(GpuError::Unsupported(why)) => tracing::debug!("depth images on the CPU: {why}"),
+            drawn => return drawn,
+        }
+    }
+    Ok(views.par_iter().map(|view| depth_image(view, mesh)).collect())
 }
 
 /// A coverage bitmask, one bit per pixel.

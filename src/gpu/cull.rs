@@ -128,6 +128,7 @@ impl<'a> InstanceScene<'a> {
             let depth = self.depth.create_view(&Default::default());
             let mut encoder = gpu.device.create_command_encoder(&Default::default());
             {
+                let stamp = gpu.stamp();
                 let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                     label: Some("cull"),
                     color_attachments: &[Some(wgpu::RenderPassColorAttachment {
@@ -145,7 +146,7 @@ impl<'a> InstanceScene<'a> {
                         },
                     })],
                     depth_stencil_attachment: Some(super::depth_attachment(&depth, 0.0, false)),
-                    timestamp_writes: None,
+                    timestamp_writes: stamp.as_ref().map(|s| s.render()),
                     occlusion_query_set: None,
                     multiview_mask: None,
                 });

@@ -13,6 +13,7 @@ use wgpu::util::DeviceExt;
 pub mod cpsv;
 pub mod cull;
 pub mod raster;
+mod timer;
 pub mod voxel;
 
 /// Where the GPU stages run.
@@ -46,6 +47,7 @@ pub enum GpuError {
 }
 
 /// An open device and the pipelines built on it.
+#[derive(Clone)]
 pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
@@ -53,7 +55,9 @@ pub struct Gpu {
     /// The largest storage buffer one binding may hold (lavapipe: 128 MiB).
     pub max_binding: u64,
     lost: Arc<AtomicBool>,
-    pipelines: Mutex<HashMap<(usize, &'static str), wgpu::ComputePipeline>>,
+    pipelines: Arc<Mutex<HashMap<(usize, &'static str), wgpu::ComputePipeline>>>,
+    /// Times the passes recorded through this handle ([`Gpu::timed`]).
+    timer: Option<Arc<timer::PassTimer>>,
 }
 
 static DEVICE: Mutex<Option<Arc<Gpu>>> = Mutex::new(None);
@@ -143,6 +147,7 @@ fn open() -> Result<Gpu, GpuError> {
     };
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("occluder-cook"),
+        required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
         required_limits: limits.clone(),
         ..Default::default()
     }))
@@ -160,10 +165,11 @@ fn open() -> Result<Gpu, GpuError> {
         info,
         max_binding: limits.max_storage_buffer_binding_size.min(limits.max_buffer_size),
         lost,
-        pipelines: Mutex::new(HashMap::new()),
+        pipelines: Arc::new(Mutex::new(HashMap::new())),
+        timer: None,
     };
     gpu.run(|gpu| {
-        for (source, entry) in voxel::ENTRY_POINTS {
+        for (source, entry) in voxel::ENTRY_POINTS.into_iter().chain(raster::ENTRY_POINTS) {
             gpu.pipeline(source, entry);
         }
         Ok(())
@@ -263,11 +269,12 @@ impl MeshBuffers {
             }],
         });
         let colors: Vec<_> = color.into_iter().map(Some).collect();
+        let stamp = gpu.stamp();
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: None,
             color_attachments: &colors,
             depth_stencil_attachment: Some(depth),
-            timestamp_writes: None,
+            timestamp_writes: stamp.as_ref().map(|s| s.render()),
             occlusion_query_set: None,
             multiview_mask: None,
         });
@@ -345,6 +352,9 @@ pub(crate) fn mesh_pipeline(
     })
 }
 
+/// Threads in a workgroup, as the compute shaders declare.
+pub const WORKGROUP: u32 = 64;
+
 /// Workgroups are dispatched in a 2D grid of at most this many along x.
 pub const MAX_GROUPS_X: u32 = 65535;
 
@@ -358,13 +368,30 @@ impl Gpu {
     /// force slabs.
     pub fn with_max_binding(&self, bytes: u64) -> Gpu {
         Gpu {
-            device: self.device.clone(),
-            queue: self.queue.clone(),
-            info: self.info.clone(),
             max_binding: bytes.min(self.max_binding),
-            lost: self.lost.clone(),
-            pipelines: Mutex::new(self.pipelines.lock().unwrap_or_else(|e| e.into_inner()).clone()),
+            ..self.clone()
         }
+    }
+
+    /// The same device, timing the passes recorded through this handle alone (so concurrent
+    /// cooks keep their times apart); untimed where the adapter has no timestamp queries.
+    pub fn timed(&self) -> Gpu {
+        let timestamps = self.device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        Gpu {
+            timer: timestamps.then(|| Arc::new(timer::PassTimer::new())),
+            ..self.clone()
+        }
+    }
+
+    /// Where the next pass writes its times, on a timed handle.
+    pub(crate) fn stamp(&self) -> Option<timer::PassStamp> {
+        self.timer.as_ref().map(|t| t.stamp(&self.device))
+    }
+
+    /// The device's milliseconds for the passes submitted since the last call, on a timed
+    /// handle.
+    pub fn take_device_ms(&self) -> Result<Option<f64>, GpuError> {
+        self.timer.as_ref().map(|t| t.take_ms(self)).transpose()
     }
 
     /// Runs `work` and turns the device's out-of-memory, validation and loss into an error for
@@ -457,7 +484,11 @@ impl Gpu {
         });
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
+            let stamp = self.stamp();
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(entry),
+                timestamp_writes: stamp.as_ref().map(|s| s.compute()),
+            });
             pass.set_pipeline(&pipeline);
             pass.set_bind_group(0, &bind_group, &[]);
             pass.dispatch_workgroups(groups.min(MAX_GROUPS_X), groups.div_ceil(MAX_GROUPS_X), 1);

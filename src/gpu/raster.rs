@@ -1,76 +1,145 @@
-//! Host code for shaders/raster.wgsl: depth images of a mesh from orthographic views, one render
-//! pass each, read back in one go. The twin is [`crate::eval::raster::depth_image`].
+//! Host code for shaders/raster.wgsl: depth images of a mesh from orthographic views, rasterized
+//! in compute, read back in one go. The twin is [`crate::eval::raster::depth_image`].
 
-use super::{Gpu, GpuError};
+use super::{Gpu, GpuError, WORKGROUP};
 use crate::eval::raster::View;
 use crate::mesh::Mesh;
 
 const SHADER: &str = include_str!("../../shaders/raster.wgsl");
 
+/// Built when the device opens, like the voxel stages' entry points.
+pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "depth_min")];
+
+/// Pixel tests one thread may make over its views: under llvmpipe's 65535 loop iterations.
+const THREAD_PIXELS: usize = 49152;
+/// The shader's `nearness` key of an empty pixel.
+const EMPTY: u32 = 0;
+
 /// The nearest depth per pixel of `mesh` in each view (orthographic, all the same size), rows
 /// from the bottom as [`View::project`] counts them, `f32::INFINITY` where nothing is drawn.
+/// `Unsupported` for perspective views and for meshes larger than one storage binding.
 pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f32>>, GpuError> {
-    let Some(pixels) = views.first().map(|v| v.pixels as u32) else {
+    let Some(pixels) = views.first().map(|v| v.pixels) else {
         return Ok(Vec::new());
     };
+    let (lo, hi) = mesh.bounds();
+    let origin = ((lo + hi) * 0.5).as_dvec3();
+    let mut rows: Vec<[f32; 4]> = Vec::with_capacity(3 * views.len());
+    let mut scale = 0f64;
+    for view in views {
+        let (Some(view_rows), Some(view_scale)) = (view.ortho_rows(origin), view.ortho_scale()) else {
+            return Err(GpuError::Unsupported("GPU depth images are orthographic only".into()));
+        };
+        rows.extend(view_rows.map(|r| r.map(|v| v as f32)));
+        scale = scale.max(view_scale);
+    }
+    let image_bytes = (pixels * pixels * 4) as u64;
+    let per_dispatch = (gpu.max_binding / image_bytes) as usize;
+    let mesh_bytes = (mesh.positions.len() * 12).max(mesh.triangles.len() * 12) as u64;
+    if per_dispatch == 0 || mesh_bytes > gpu.max_binding {
+        return Err(GpuError::Unsupported(
+            "the mesh or one depth image exceeds the adapter's largest storage binding".into(),
+        ));
+    }
+    // A thread draws its item in as many views as fit its budget with a row of the image each:
+    // llvmpipe spends more setting a thread up than drawing a tiny triangle.
+    let views_per_thread = (THREAD_PIXELS / pixels).clamp(1, views.len());
+    let items = work_items(mesh, scale, pixels, views_per_thread);
+    if items.is_empty() {
+        return Ok(vec![vec![f32::INFINITY; pixels * pixels]; views.len()]);
+    }
     gpu.run(|gpu| {
-        let buffers = super::MeshBuffers::new(gpu, mesh);
-        let origin = buffers.origin;
-        // Both sides, as the twin draws them.
-        let pipeline = super::mesh_pipeline(gpu, SHADER, wgpu::CompareFunction::Less, None);
-        let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-        let image_bytes = u64::from(row) * u64::from(pixels);
-        let staging = gpu.staging(image_bytes * views.len() as u64);
-        let target = super::render_target(
-            gpu,
-            super::DEPTH_FORMAT,
-            pixels,
-            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-        );
-        let target_view = target.create_view(&Default::default());
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        for (i, view) in views.iter().enumerate() {
-            let matrix = view
-                .ortho_clip_matrix(origin, view.ortho_margin(mesh))
-                .ok_or_else(|| GpuError::Unsupported("GPU depth images are orthographic only".into()))?
-                .as_mat4();
-            let depth = super::depth_attachment(&target_view, 1.0, true);
-            buffers.draw(gpu, &mut encoder, &pipeline, &matrix.to_cols_array(), None, depth);
-            encoder.copy_texture_to_buffer(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &target,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d::ZERO,
-                    aspect: wgpu::TextureAspect::DepthOnly,
-                },
-                wgpu::TexelCopyBufferInfo {
-                    buffer: &staging,
-                    layout: wgpu::TexelCopyBufferLayout {
-                        offset: image_bytes * i as u64,
-                        bytes_per_row: Some(row),
-                        rows_per_image: None,
-                    },
-                },
-                target.size(),
+        let positions: Vec<f32> = mesh
+            .positions
+            .iter()
+            .flat_map(|p| (p.as_dvec3() - origin).as_vec3().to_array())
+            .collect();
+        let positions = gpu.upload(&positions);
+        let triangles = gpu.upload(&mesh.triangles);
+        let item_buffer = gpu.upload(&items);
+        let mut images = Vec::with_capacity(views.len());
+        for (chunk, chunk_rows) in views.chunks(per_dispatch).zip(rows.chunks(3 * per_dispatch)) {
+            let params = gpu.upload(&[
+                pixels as u32,
+                chunk.len() as u32,
+                items.len() as u32,
+                views_per_thread as u32,
+            ]);
+            let view_buffer = gpu.upload(chunk_rows);
+            let depth = gpu.zeroed((pixels * pixels * chunk.len() * 4) as u64);
+            let threads = items.len() as u64 * chunk.len().div_ceil(views_per_thread) as u64;
+            let groups = u32::try_from(threads.div_ceil(u64::from(WORKGROUP)))
+                .map_err(|_| GpuError::Unsupported("too many triangles for one dispatch".into()))?;
+            gpu.dispatch(
+                SHADER,
+                "depth_min",
+                &[
+                    (0, &params),
+                    (1, &positions),
+                    (2, &triangles),
+                    (3, &item_buffer),
+                    (4, &view_buffer),
+                    (5, &depth),
+                ],
+                groups,
+            );
+            let keys: Vec<u32> = gpu.read(&depth)?;
+            images.extend(
+                keys.chunks(pixels * pixels)
+                    .map(|image| image.iter().map(|&k| depth_of(k)).collect()),
             );
         }
-        let raw: Vec<f32> = gpu.finish_read(encoder, &staging)?;
-        let (per_row, n) = (row as usize / 4, pixels as usize);
-        Ok(views
-            .iter()
-            .zip(raw.chunks(per_row * n))
-            .map(|(view, image)| {
-                let margin = view.ortho_margin(mesh);
-                // The GPU's first row is the top one.
-                (0..n)
-                    .rev()
-                    .flat_map(|y| image[y * per_row..y * per_row + n].iter())
-                    .map(|&d| match view.ortho_depth(d, margin) {
-                        Some(depth) if d < 1.0 => depth,
-                        _ => f32::INFINITY,
-                    })
-                    .collect()
-            })
-            .collect())
+        Ok(images)
     })
+}
+
+/// The depth a shader key stands for (`nearness` in shaders/raster.wgsl, undone).
+fn depth_of(key: u32) -> f32 {
+    match key {
+        EMPTY => f32::INFINITY,
+        k if k & 0x8000_0000 != 0 => f32::from_bits(k),
+        k => f32::from_bits(!k & 0x7fff_ffff),
+    }
+}
+
+/// (triangle, first row, rows, 0) per run of rows: a triangle's projected bounds are at most its
+/// diameter times `scale` pixels across in any view, and at most the image, split so no thread
+/// tests more than `THREAD_PIXELS` pixels over its `views_per_thread` views.
+fn work_items(mesh: &Mesh, scale: f64, pixels: usize, views_per_thread: usize) -> Vec<[u32; 4]> {
+    let mut items = Vec::with_capacity(mesh.triangles.len());
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let corners = tri.map(|v| mesh.positions[v as usize].as_dvec3());
+        let centre = (corners[0] + corners[1] + corners[2]) / 3.0;
+        let reach = corners.iter().map(|c| c.distance(centre)).fold(0.0, f64::max);
+        let side = ((2.0 * reach * scale).ceil() as usize + 2).min(pixels);
+        let rows = (THREAD_PIXELS / views_per_thread / side).max(1);
+        for first in (0..side).step_by(rows) {
+            items.push([t as u32, first as u32, rows as u32, 0]);
+        }
+    }
+    items
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn depth_keys_grow_nearer_and_come_back_unchanged() {
+        // `nearness` in the shader, written out for the test.
+        let nearness = |d: f32| {
+            let bits = d.to_bits();
+            if bits & 0x8000_0000 != 0 {
+                bits
+            } else {
+                !(bits | 0x8000_0000)
+            }
+        };
+        let depths = [-f32::MAX, -3.5f32, -0.0, 0.0, 1e-30, 0.25, 7.0, f32::MAX];
+        for pair in depths.windows(2) {
+            assert!(nearness(pair[0]) >= nearness(pair[1]), "{pair:?}");
+        }
+        for d in depths {
+            assert_ne!(nearness(d), super::EMPTY);
+            assert_eq!(super::depth_of(nearness(d)).to_bits(), d.to_bits());
+        }
+    }
 }

@@ -6,7 +6,7 @@
 //! what can be cooked. Work is split into items small enough that no invocation loops more than
 //! llvmpipe allows (65535 iterations; past that it silently stops).
 
-use super::{Gpu, GpuError};
+use super::{Gpu, GpuError, WORKGROUP};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::Grid;
 use crate::voxel::surface::SLACK;
@@ -37,8 +37,6 @@ pub const ENTRY_POINTS: [(&str, &str); 5] = [
 
 /// Bytes of one triangle's corners on the GPU.
 const TRIANGLE_BYTES: u64 = 36;
-/// Threads in a workgroup, as the shaders declare.
-const WORKGROUP: u32 = 64;
 /// Loop iterations one invocation may spend, with a margin under llvmpipe's 65535.
 const LOOP_BUDGET: usize = 50_000;
 /// The CPU twin's sample spacing along a column (`STRIDE` in winding.wgsl).

@@ -8,7 +8,7 @@
 //! takes the farthest depth of its 3×3 neighbourhood, so that an opening seen from a direction
 //! between the sampled ones, or between pixel centres, still counts.
 
-use crate::eval::raster::{View, depth_image, rasterize};
+use crate::eval::raster::{View, depth_images, rasterize};
 use crate::eval::views::fibonacci_sphere;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
@@ -40,10 +40,7 @@ impl OpenViews {
             .filter(|d| d.y >= 0.0)
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
-        let images = match gpu {
-            Some(gpu) => crate::gpu::raster::depth_images(gpu, mesh, &views)?,
-            None => views.par_iter().map(|v| depth_image(v, mesh)).collect(),
-        };
+        let images = depth_images(&views, mesh, gpu)?;
         let depths: Vec<Vec<f32>> = images.par_iter().map(|d| farthest_nearby(d, PIXELS)).collect();
         let tiles = depths.iter().map(|d| farthest_per_tile(d, PIXELS)).collect();
         Ok(OpenViews { views, depths, tiles })

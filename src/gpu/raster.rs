@@ -33,18 +33,18 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
         rows.extend(view_rows.map(|r| r.map(|v| v as f32)));
         scale = scale.max(view_scale);
     }
-    let image_bytes = (pixels * pixels * 4) as u64;
-    let per_dispatch = (gpu.max_binding / image_bytes) as usize;
-    let mesh_bytes = (mesh.positions.len() * 12).max(mesh.triangles.len() * 12) as u64;
-    if per_dispatch == 0 || mesh_bytes > gpu.max_binding {
-        return Err(GpuError::Unsupported(
-            "the mesh or one depth image exceeds the adapter's largest storage binding".into(),
-        ));
-    }
     // A thread draws its item in as many views as fit its budget with a row of the image each:
     // llvmpipe spends more setting a thread up than drawing a tiny triangle.
     let views_per_thread = (THREAD_PIXELS / pixels).clamp(1, views.len());
     let items = work_items(mesh, scale, pixels, views_per_thread);
+    let image_bytes = (pixels * pixels * 4) as u64;
+    let per_dispatch = (gpu.max_binding / image_bytes) as usize;
+    let largest_input = [mesh.positions.len() * 12, mesh.triangles.len() * 12, items.len() * 16];
+    if per_dispatch == 0 || largest_input.into_iter().any(|bytes| bytes as u64 > gpu.max_binding) {
+        return Err(GpuError::Unsupported(
+            "the mesh or one depth image exceeds the adapter's largest storage binding".into(),
+        ));
+    }
     if items.is_empty() {
         return Ok(vec![vec![f32::INFINITY; pixels * pixels]; views.len()]);
     }

@@ -111,10 +111,9 @@ impl View {
     /// `origin`, as (x, y, z, 1), to [`View::project`]'s pixel x, pixel y and depth. None for
     /// perspective views.
     pub fn ortho_rows(&self, origin: DVec3) -> Option<[[f64; 4]; 3]> {
-        let Lens::Orthographic { center, radius } = self.lens else {
+        let (Lens::Orthographic { center, radius }, Some(scale)) = (self.lens, self.ortho_scale()) else {
             return None;
         };
-        let scale = self.pixels as f64 / 2.0 / radius;
         let offset = origin - center;
         let row = |axis: DVec3, scale: f64, constant: f64| {
             let v = axis * scale;

@@ -211,6 +211,19 @@ pub fn depth_attachment(
     }
 }
 
+/// The centre of `mesh`'s bounds and its positions relative to it, in f32: precise far from the
+/// world's origin.
+pub(crate) fn centred_positions(mesh: &crate::mesh::Mesh) -> (glam::DVec3, Vec<[f32; 3]>) {
+    let (lo, hi) = mesh.bounds();
+    let origin = ((lo + hi) * 0.5).as_dvec3();
+    let positions = mesh
+        .positions
+        .iter()
+        .map(|p| (p.as_dvec3() - origin).as_vec3().to_array())
+        .collect();
+    (origin, positions)
+}
+
 /// A mesh on the device for the render stages: positions relative to the centre of its bounds
 /// (which keeps f32 precise far from the world's origin) and indices.
 pub(crate) struct MeshBuffers {
@@ -222,13 +235,7 @@ pub(crate) struct MeshBuffers {
 
 impl MeshBuffers {
     pub fn new(gpu: &Gpu, mesh: &crate::mesh::Mesh) -> MeshBuffers {
-        let (lo, hi) = mesh.bounds();
-        let origin = ((lo + hi) * 0.5).as_dvec3();
-        let positions: Vec<[f32; 3]> = mesh
-            .positions
-            .iter()
-            .map(|p| (p.as_dvec3() - origin).as_vec3().to_array())
-            .collect();
+        let (origin, positions) = centred_positions(mesh);
         let init = |contents: &[u8], usage| {
             gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: None,

@@ -22,8 +22,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
     let Some(pixels) = views.first().map(|v| v.pixels) else {
         return Ok(Vec::new());
     };
-    let (lo, hi) = mesh.bounds();
-    let origin = ((lo + hi) * 0.5).as_dvec3();
+    let (origin, positions) = super::centred_positions(mesh);
     let mut rows: Vec<[f32; 4]> = Vec::with_capacity(3 * views.len());
     let mut scale = 0f64;
     for view in views {
@@ -49,11 +48,6 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
         return Ok(vec![vec![f32::INFINITY; pixels * pixels]; views.len()]);
     }
     gpu.run(|gpu| {
-        let positions: Vec<f32> = mesh
-            .positions
-            .iter()
-            .flat_map(|p| (p.as_dvec3() - origin).as_vec3().to_array())
-            .collect();
         let positions = gpu.upload(&positions);
         let triangles = gpu.upload(&mesh.triangles);
         let item_buffer = gpu.upload(&items);

@@ -285,14 +285,16 @@ pub fn cook_with_progress(
         true => None,
         false => {
             if gpu.is_some() {
-                gpu_stages.push("exposure-render");
+                gpu_stages.extend(["exposure-render", "exposure-voxels"]);
             }
             Some(timings.time("exposure-render", || OpenViews::new(&mesh, gpu.as_deref()))?)
         }
     };
     let exposed_voxels = match &open_views {
         None => 0,
-        Some(views) => timings.time("exposure-voxels", || views.remove_exposed(&grid, &mut inner)),
+        Some(views) => timings.time("exposure-voxels", || {
+            views.remove_exposed(&grid, &mut inner, gpu.as_deref())
+        })?,
     };
     let inner_count = inner.iter().filter(|&&v| v).count();
     let expansion = boxes::ExpansionSettings {

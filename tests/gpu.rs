@@ -8,6 +8,7 @@ use glam::Vec3;
 use occluder_cook::eval::raster::{View, depth_image};
 use occluder_cook::gpu::{self, Gpu, GpuError};
 use occluder_cook::mesh::{Mesh, load_file, topology::orient_closed_components};
+use occluder_cook::occluder::exposure::OpenViews;
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
 use std::sync::Arc;
 
@@ -388,6 +389,39 @@ fn cpsv_on_the_gpu_matches_its_cpu_twin() {
         assert!(
             c.solid.iter().zip(&surface).any(|(&s, &t)| s && !t),
             "{name}: nothing inside"
+        );
+    }
+}
+
+#[test]
+fn exposed_voxels_on_the_gpu_match_their_cpu_twin() {
+    let Some(gpu) = device() else { return };
+    let mut meshes = vec![(
+        "open box".to_string(),
+        cuboid(Vec3::splat(-1.0), Vec3::new(1.0, 2.0, 1.0), &[3]),
+    )];
+    if let Some(dir) = common::corpus() {
+        for name in ["bunny-holes.obj", "kenney-building-small-a.glb", "sphere-with-hole.stl"] {
+            meshes.push((name.into(), load_file(&dir.join(name)).expect("corpus mesh loads").0));
+        }
+    }
+    for (name, mesh) in meshes {
+        let (lo, hi) = mesh.bounds();
+        let grid = Grid::fit(lo, hi, 64);
+        let views = OpenViews::new(&mesh, None).expect("CPU views");
+        // Every voxel, so that every corner of the grid is tested.
+        let (mut on_gpu, mut on_cpu) = (vec![true; grid.len()], vec![true; grid.len()]);
+        let removed = views
+            .remove_exposed(&grid, &mut on_gpu, Some(&gpu))
+            .expect("GPU corners");
+        let twin = views.remove_exposed(&grid, &mut on_cpu, None).expect("CPU corners");
+        let differing = differ(&on_gpu, &on_cpu);
+        eprintln!("{name}: {removed} exposed on the GPU, {twin} on the CPU, {differing} voxels differ");
+        assert!(twin > 0, "{name}: the views see into the grid");
+        // f32 against f64 projections: only corners within rounding of a pixel's depth may differ.
+        assert!(
+            differing as f64 <= 1e-3 * twin as f64,
+            "{name}: {differing} of {twin} differ"
         );
     }
 }

@@ -12,6 +12,7 @@ use wgpu::util::DeviceExt;
 
 pub mod cpsv;
 pub mod cull;
+pub mod exposure;
 pub mod raster;
 mod timer;
 pub mod voxel;
@@ -169,7 +170,11 @@ fn open() -> Result<Gpu, GpuError> {
         timer: None,
     };
     gpu.run(|gpu| {
-        for (source, entry) in voxel::ENTRY_POINTS.into_iter().chain(raster::ENTRY_POINTS) {
+        for (source, entry) in voxel::ENTRY_POINTS
+            .into_iter()
+            .chain(raster::ENTRY_POINTS)
+            .chain(exposure::ENTRY_POINTS)
+        {
             gpu.pipeline(source, entry);
         }
         Ok(())

@@ -58,8 +58,9 @@ impl OpenViews {
         q.z < f64::from(depth) - v.depth_tolerance()
     }
 
-    /// Clears the voxels of `inner` that a view sees at one of their corners.
-    pub fn remove_exposed(&self, grid: &Grid, inner: &mut [bool]) -> usize {
+    /// Clears the voxels of `inner` that a view sees at one of their corners, testing the
+    /// corners on `gpu` when given (shaders/exposure.wgsl). Returns how many were cleared.
+    pub fn remove_exposed(&self, grid: &Grid, inner: &mut [bool], gpu: Option<&Gpu>) -> Result<usize, GpuError> {
         // Neighbouring voxels share corners: test each corner once.
         let [_, ny, nz] = grid.dims;
         let corner = |x: usize, y: usize, z: usize| (x * (ny + 1) + y) * (nz + 1) + z;
@@ -67,13 +68,39 @@ impl OpenViews {
             let [x, y, z] = grid.coords(i);
             (0..8).map(move |c| corner(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1)))
         };
-        let mut needed = vec![false; grid.dims.iter().map(|d| d + 1).product()];
-        for i in (0..inner.len()).filter(|&i| inner[i]) {
-            for c in corners_of(i) {
-                needed[c] = true;
+        // A corner is needed when one of the (up to 8) voxels around it is inner.
+        let [nx, ny1, nz1] = [grid.dims[0], ny + 1, nz + 1];
+        let needed: Vec<bool> = (0..(nx + 1) * ny1 * nz1)
+            .into_par_iter()
+            .map(|c| {
+                let (x, y, z) = (c / (ny1 * nz1), (c / nz1) % ny1, c % nz1);
+                let around = |v: usize, n: usize| v.saturating_sub(1)..v.min(n - 1) + 1;
+                around(x, nx).any(|vx| around(y, ny).any(|vy| around(z, nz).any(|vz| inner[grid.index(vx, vy, vz)])))
+            })
+            .collect();
+        let seen = match gpu.map(|gpu| self.seen_corners_on(gpu, grid, &needed)) {
+            Some(Ok(seen)) => seen,
+            Some(Err(GpuError::Unsupported(why))) => {
+                tracing::debug!("exposed corners on the CPU: {why}");
+                self.seen_corners(grid, &needed)
             }
+            Some(Err(e)) => return Err(e),
+            None => self.seen_corners(grid, &needed),
+        };
+        let exposed: Vec<usize> = (0..inner.len())
+            .into_par_iter()
+            .filter(|&i| inner[i] && corners_of(i).any(|c| seen[c]))
+            .collect();
+        for &i in &exposed {
+            inner[i] = false;
         }
-        let seen: Vec<bool> = needed
+        Ok(exposed.len())
+    }
+
+    /// Of the `needed` grid corners (z fastest), those some view sees.
+    fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
+        let [_, ny, nz] = grid.dims;
+        needed
             .par_iter()
             .enumerate()
             .map(|(c, &needed)| {
@@ -81,14 +108,30 @@ impl OpenViews {
                 let p = grid.to_world(DVec3::new(x as f64, y as f64, z as f64));
                 needed && (0..self.views.len()).any(|v| self.sees(v, p))
             })
-            .collect();
-        let exposed: Vec<usize> = (0..inner.len())
-            .filter(|&i| inner[i] && corners_of(i).any(|c| seen[c]))
-            .collect();
-        for &i in &exposed {
-            inner[i] = false;
+            .collect()
+    }
+
+    /// [`OpenViews::seen_corners`] on the GPU.
+    fn seen_corners_on(&self, gpu: &Gpu, grid: &Grid, needed: &[bool]) -> Result<Vec<bool>, GpuError> {
+        // From points relative to the grid's origin to corners in voxel units.
+        let size = grid.voxel_size;
+        let to_corners = |r: [f64; 4]| [r[0] * size, r[1] * size, r[2] * size, r[3]].map(|v| v as f32);
+        let mut rows = Vec::with_capacity(3 * self.views.len());
+        for view in &self.views {
+            let [x, y, mut depth] = view
+                .ortho_rows(grid.origin())
+                .ok_or_else(|| GpuError::Unsupported("the exposure views are orthographic".into()))?;
+            // "In front of the depth by more than the tolerance", as one comparison.
+            depth[3] += view.depth_tolerance();
+            rows.extend([x, y, depth].map(to_corners));
         }
-        exposed.len()
+        let bits: Vec<u32> = needed
+            .par_chunks(32)
+            .map(|word| word.iter().rev().fold(0, |bits, &n| bits << 1 | u32::from(n)))
+            .collect();
+        let corner_dims = grid.dims.map(|d| d + 1);
+        let seen = crate::gpu::exposure::seen_corners(gpu, corner_dims, &bits, &rows, &self.depths.concat(), PIXELS)?;
+        Ok((0..needed.len()).map(|c| seen[c / 32] & (1 << (c % 32)) != 0).collect())
     }
 
     /// Whether no view sees any pixel of these triangles (a box, a quad) in front of the

@@ -21,7 +21,7 @@ struct Params {
 // (triangle, first row of its bounds, rows, unused).
 @group(0) @binding(3) var<storage, read> items: array<vec4<u32>>;
 // Three rows a view: (x pixel, y pixel, depth) = row · (position, 1).
-@group(0) @binding(4) var<storage, read> views: array<vec4<f32>>;
+@group(0) @binding(4) var<uniform> views: array<vec4<f32>, 768>;
 // One image a view, rows from the bottom; depths as `nearness` keys, 0 where empty (so the
 // buffer starts zeroed).
 @group(0) @binding(5) var<storage, read_write> depth: array<atomic<u32>>;

@@ -48,14 +48,25 @@ fn surface(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_in
         return;
     }
     let b = w.bounds;
+    // The item's voxels, z fastest, counted rather than divided out of i each time: a software
+    // adapter divides lane by lane.
+    var x = b.lo.x + w.first / (b.size.y * b.size.z);
+    var y = b.lo.y + (w.first / b.size.z) % b.size.y;
+    var z = b.lo.z + w.first % b.size.z;
     for (var i = w.first; i < w.end; i++) {
-        let x = b.lo.x + i / (b.size.y * b.size.z);
-        let y = b.lo.y + (i / b.size.z) % b.size.y;
-        let z = b.lo.z + i % b.size.z;
         let centre = vec3<f32>(f32(x), f32(y), f32(z)) + vec3<f32>(0.5);
         if overlaps(centre, params.half, w.t0, w.t1, w.t2) {
             let bit = ((x - params.slab_start) * params.dims_y + y) * params.dims_z + z;
             atomicOr(&bits[bit / 32u], 1u << (bit % 32u));
+        }
+        z++;
+        if z == b.lo.z + b.size.z {
+            z = b.lo.z;
+            y++;
+            if y == b.lo.y + b.size.y {
+                y = b.lo.y;
+                x++;
+            }
         }
     }
 }

@@ -443,6 +443,18 @@ impl Gpu {
         })
     }
 
+    /// A uniform buffer of `data` zero-padded to `len` elements: a shader's fixed-size array,
+    /// for small tables every lane reads (the views' rows).
+    pub fn uniform<T: bytemuck::Pod>(&self, data: &[T], len: usize) -> wgpu::Buffer {
+        let mut padded = data.to_vec();
+        padded.resize(len.max(data.len()), T::zeroed());
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents: bytemuck::cast_slice(&padded),
+            usage: wgpu::BufferUsages::UNIFORM,
+        })
+    }
+
     /// A zeroed storage buffer of `bytes` (rounded up to a word).
     pub fn zeroed(&self, bytes: u64) -> wgpu::Buffer {
         self.device.create_buffer(&wgpu::BufferDescriptor {

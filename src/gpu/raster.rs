@@ -4,6 +4,7 @@
 use super::{Gpu, GpuError, WORKGROUP};
 use crate::eval::raster::View;
 use crate::mesh::Mesh;
+use rayon::prelude::*;
 
 const SHADER: &str = include_str!("../../shaders/raster.wgsl");
 
@@ -14,6 +15,8 @@ pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "depth_min")];
 const THREAD_PIXELS: usize = 49152;
 /// The shader's `nearness` key of an empty pixel.
 const EMPTY: u32 = 0;
+/// The most views one dispatch draws: the shader's uniform array holds three rows each.
+const MAX_VIEWS: usize = 256;
 
 /// The nearest depth per pixel of `mesh` in each view (orthographic, all the same size), rows
 /// from the bottom as [`View::project`] counts them, `f32::INFINITY` where nothing is drawn.
@@ -37,7 +40,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
     let views_per_thread = (THREAD_PIXELS / pixels).clamp(1, views.len());
     let items = work_items(mesh, scale, pixels, views_per_thread);
     let image_bytes = (pixels * pixels * 4) as u64;
-    let per_dispatch = (gpu.max_binding / image_bytes) as usize;
+    let per_dispatch = ((gpu.max_binding / image_bytes) as usize).min(MAX_VIEWS);
     let largest_input = [mesh.positions.len() * 12, mesh.triangles.len() * 12, items.len() * 16];
     if per_dispatch == 0 || largest_input.into_iter().any(|bytes| bytes as u64 > gpu.max_binding) {
         return Err(GpuError::Unsupported(
@@ -59,7 +62,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
                 items.len() as u32,
                 views_per_thread as u32,
             ]);
-            let view_buffer = gpu.upload(chunk_rows);
+            let view_buffer = gpu.uniform(chunk_rows, 3 * MAX_VIEWS);
             let depth = gpu.zeroed((pixels * pixels * chunk.len() * 4) as u64);
             let threads = items.len() as u64 * chunk.len().div_ceil(views_per_thread) as u64;
             let groups = u32::try_from(threads.div_ceil(u64::from(WORKGROUP)))
@@ -78,9 +81,9 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
                 groups,
             );
             let keys: Vec<u32> = gpu.read(&depth)?;
-            images.extend(
-                keys.chunks(pixels * pixels)
-                    .map(|image| image.iter().map(|&k| depth_of(k)).collect()),
+            images.par_extend(
+                keys.par_chunks(pixels * pixels)
+                    .map(|image| image.iter().map(|&k| depth_of(k)).collect::<Vec<f32>>()),
             );
         }
         Ok(images)

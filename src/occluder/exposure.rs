@@ -20,15 +20,16 @@ use rayon::prelude::*;
 const DIRECTIONS: usize = 256;
 const PIXELS: usize = 256;
 
-/// Pixels per side of the tiles whose farthest depth gives a quick "hidden" answer.
-const TILE: usize = 8;
+/// Pixels per side of the tiles whose farthest depth gives a quick "hidden" answer (TILE in
+/// shaders/exposure.wgsl).
+pub(crate) const TILE: usize = 8;
 const R: usize = 1;
 
 pub struct OpenViews {
     views: Vec<View>,
-    depths: Vec<Vec<f32>>,
+    depths: Vec<f32>,
     /// Per view, the farthest depth of each TILE × TILE tile of `depths`.
-    tiles: Vec<Vec<f32>>,
+    tiles: Vec<f32>,
 }
 
 impl OpenViews {
@@ -41,8 +42,17 @@ impl OpenViews {
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
         let images = depth_images(&views, mesh, gpu)?;
-        let depths: Vec<Vec<f32>> = images.par_iter().map(|d| farthest_nearby(d, PIXELS)).collect();
-        let tiles = depths.iter().map(|d| farthest_per_tile(d, PIXELS)).collect();
+        // One after another, as the GPU takes them.
+        let mut depths = vec![0f32; images.len() * PIXELS * PIXELS];
+        depths
+            .par_chunks_mut(PIXELS * PIXELS)
+            .zip(&images)
+            .for_each(|(out, image)| farthest_nearby(image, PIXELS, out));
+        let mut tiles = vec![0f32; images.len() * (PIXELS / TILE).pow(2)];
+        tiles
+            .par_chunks_mut((PIXELS / TILE).pow(2))
+            .zip(depths.par_chunks(PIXELS * PIXELS))
+            .for_each(|(out, depth)| farthest_per_tile(depth, PIXELS, out));
         Ok(OpenViews { views, depths, tiles })
     }
 
@@ -54,7 +64,7 @@ impl OpenViews {
         if q.x < 0.0 || q.y < 0.0 || q.x >= n || q.y >= n {
             return true;
         }
-        let depth = self.depths[view][q.y as usize * v.pixels + q.x as usize];
+        let depth = self.depths[(view * PIXELS + q.y as usize) * PIXELS + q.x as usize];
         q.z < f64::from(depth) - v.depth_tolerance()
     }
 
@@ -125,13 +135,19 @@ impl OpenViews {
             depth[3] += view.depth_tolerance();
             rows.extend([x, y, depth].map(to_corners));
         }
-        let bits: Vec<u32> = needed
+        let words: Vec<[u32; 2]> = needed
             .par_chunks(32)
-            .map(|word| word.iter().rev().fold(0, |bits, &n| bits << 1 | u32::from(n)))
+            .enumerate()
+            .map(|(w, word)| [w as u32, word.iter().rev().fold(0, |bits, &n| bits << 1 | u32::from(n))])
+            .filter(|&[_, bits]| bits != 0)
             .collect();
         let corner_dims = grid.dims.map(|d| d + 1);
-        let seen = crate::gpu::exposure::seen_corners(gpu, corner_dims, &bits, &rows, &self.depths.concat(), PIXELS)?;
-        Ok((0..needed.len()).map(|c| seen[c / 32] & (1 << (c % 32)) != 0).collect())
+        let seen =
+            crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, &self.depths, &self.tiles, PIXELS)?;
+        Ok((0..needed.len())
+            .into_par_iter()
+            .map(|c| seen[c / 32] & (1 << (c % 32)) != 0)
+            .collect())
     }
 
     /// Whether no view sees any pixel of these triangles (a box, a quad) in front of the
@@ -148,7 +164,10 @@ impl OpenViews {
     }
 
     fn hides_triangle(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
-        let (view, depth) = (&self.views[v], &self.depths[v]);
+        let (view, depth) = (
+            &self.views[v],
+            &self.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS],
+        );
         let tolerance = view.depth_tolerance();
         // Quick answer: the nearest corner lies behind the farthest depth of every tile under
         // the triangle's screen bounds.
@@ -163,7 +182,7 @@ impl OpenViews {
         };
         let farthest = range(lo.y, hi.y)
             .flat_map(|ty| range(lo.x, hi.x).map(move |tx| ty * tiles + tx))
-            .map(|t| self.tiles[v][t])
+            .map(|t| self.tiles[v * tiles * tiles + t])
             .fold(0f32, f32::max);
         let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
         if on_screen && lo.z >= f64::from(farthest) - tolerance {
@@ -175,22 +194,20 @@ impl OpenViews {
     }
 }
 
-/// The farthest depth of each TILE × TILE tile.
-fn farthest_per_tile(depth: &[f32], n: usize) -> Vec<f32> {
+/// The farthest depth of each TILE × TILE tile, into `out` (zeroed).
+fn farthest_per_tile(depth: &[f32], n: usize, out: &mut [f32]) {
     let tiles = n / TILE;
-    let mut out = vec![0f32; tiles * tiles];
     for y in 0..n {
         for x in 0..n {
             let t = (y / TILE) * tiles + x / TILE;
             out[t] = out[t].max(depth[y * n + x]);
         }
     }
-    out
 }
 
-/// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty).
-fn farthest_nearby(depth: &[f32], n: usize) -> Vec<f32> {
-    let mut out = vec![0f32; depth.len()];
+/// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty), into
+/// `out`.
+fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
     for y in 0..n {
         for x in 0..n {
             let mut far = 0f32;
@@ -202,5 +219,4 @@ fn farthest_nearby(depth: &[f32], n: usize) -> Vec<f32> {
             out[y * n + x] = far;
         }
     }
-    out
 }

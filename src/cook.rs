@@ -287,7 +287,9 @@ pub fn cook_with_progress(
             if gpu.is_some() {
                 gpu_stages.extend(["exposure-render", "exposure-voxels"]);
             }
-            Some(timings.time("exposure-render", || OpenViews::new(&mesh, gpu.as_deref()))?)
+            Some(timings.time("exposure-render", || {
+                OpenViews::new(&mesh, &topology.boundary, gpu.as_deref())
+            })?)
         }
     };
     let exposed_voxels = match &open_views {

@@ -56,13 +56,15 @@ fn open_meshes_have_no_false_pixels_from_above() {
     }
 }
 
-/// Known failure: a few pixels of two low views see pieces through the bunny's bottom holes,
-/// which the exposure test's sampled directions miss. Run with `--ignored` to see the count.
+/// Bunny-holes' holes are small: a piece can show through one only from a narrow cone of
+/// directions, which the cameras placed in the openings catch. Suzanne's eye sockets are filled
+/// by the eyes: those cameras must not eat her head.
 #[test]
-#[ignore = "bunny-holes still shows a few false pixels in two non-below views"]
-fn bunny_holes_has_no_false_pixels_from_above() {
-    if let Some(q) = cook_corpus_mesh("bunny-holes.obj") {
-        assert_eq!(q.false_pixels_non_below, 0);
+fn small_holes_show_nothing_and_leave_a_useful_occluder() {
+    for name in ["bunny-holes.obj", "suzanne.obj"] {
+        let Some(q) = cook_corpus_mesh(name) else { return };
+        assert_eq!(q.false_pixels_non_below, 0, "{name}");
+        assert!(q.coverage >= 0.6, "{name}: coverage {}", q.coverage);
     }
 }
 

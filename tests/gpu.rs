@@ -405,10 +405,11 @@ fn exposed_voxels_on_the_gpu_match_their_cpu_twin() {
             meshes.push((name.into(), load_file(&dir.join(name)).expect("corpus mesh loads").0));
         }
     }
-    for (name, mesh) in meshes {
+    for (name, mut mesh) in meshes {
         let (lo, hi) = mesh.bounds();
         let grid = Grid::fit(lo, hi, 64);
-        let views = OpenViews::new(&mesh, None).expect("CPU views");
+        let topology = orient_closed_components(&mut mesh);
+        let views = OpenViews::new(&mesh, &topology.boundary, None).expect("CPU views");
         // Every voxel, so that every corner of the grid is tested.
         let (mut on_gpu, mut on_cpu) = (vec![true; grid.len()], vec![true; grid.len()]);
         let removed = views

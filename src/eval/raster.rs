@@ -88,6 +88,25 @@ impl View {
         }
     }
 
+    /// The point at pixel `index`'s centre and `depth`: [`View::project`] undone.
+    pub fn unproject(&self, index: usize, depth: f64) -> DVec3 {
+        let half = self.pixels as f64 / 2.0;
+        let x = (index % self.pixels) as f64 + 0.5;
+        let y = (index / self.pixels) as f64 + 0.5;
+        match self.lens {
+            Lens::Orthographic { center, radius } => {
+                let scale = radius / half;
+                center
+                    + self.right * (x * scale - radius)
+                    + self.up * (y * scale - radius)
+                    + self.dir * (radius - depth)
+            }
+            Lens::Perspective { eye } => {
+                eye + (self.right * (x / half - 1.0) + self.up * (y / half - 1.0) - self.dir) * depth
+            }
+        }
+    }
+
     /// For a GPU render of a perspective view: the matrix from points relative to `origin` to
     /// clip space, x and y as [`View::project`] has them before the divide, w the depth, and
     /// z = `near`, so that depth is near / w: reversed, with a float buffer's precision where it
@@ -312,4 +331,26 @@ pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
     let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
     rasterize_mesh(view, mesh, |i, _| mask[i / 64] |= 1 << (i % 64));
     mask
+}
+
+#[cfg(test)]
+mod tests {
+    use super::View;
+    use glam::DVec3;
+
+    #[test]
+    fn unproject_undoes_project_at_pixel_centres() {
+        let eye = DVec3::new(0.3, -1.0, 2.0);
+        let views = [
+            View::new(DVec3::new(0.2, 0.9, -0.4), DVec3::new(1.0, 2.0, 3.0), 5.0, 64),
+            View::perspective(eye, DVec3::new(-0.5, 0.1, 0.8), 64, 1e-3),
+        ];
+        for view in views {
+            for (index, depth) in [(0, 0.5), (64 * 31 + 17, 2.0), (64 * 64 - 1, 7.5)] {
+                let q = view.project(view.unproject(index, depth));
+                let centre = DVec3::new((index % 64) as f64 + 0.5, (index / 64) as f64 + 0.5, depth);
+                assert!(q.distance(centre) < 1e-9, "{q} against {centre}");
+            }
+        }
+    }
 }

@@ -7,14 +7,23 @@
 //! face by face, so a box that slips through between voxel corners is still caught. Each pixel
 //! takes the farthest depth of its 3×3 neighbourhood, so that an opening seen from a direction
 //! between the sampled ones, or between pixel centres, still counts.
+//!
+//! A small hole lets a camera see in only from a narrow cone of directions, which can fall
+//! between the sampled ones. So cameras are also placed in the openings themselves (a connected
+//! run of boundary edges), looking in: whatever shows through an opening from outside is seen
+//! from some point of it. An outside camera not below a point sees it through the opening only
+//! from a point of the opening at least as high, so these cameras count only what lies no
+//! higher than themselves.
 
 use crate::eval::raster::{View, depth_images, rasterize};
 use crate::eval::views::fibonacci_sphere;
 use crate::gpu::{Gpu, GpuError};
-use crate::mesh::Mesh;
+use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::Grid;
+use crate::voxel::winding::WindingField;
 use glam::DVec3;
 use rayon::prelude::*;
+use std::collections::{HashMap, HashSet};
 
 /// Directions on the whole sphere; those not below the object are used.
 const DIRECTIONS: usize = 256;
@@ -25,23 +34,52 @@ const PIXELS: usize = 256;
 pub(crate) const TILE: usize = 8;
 const R: usize = 1;
 
+/// Cameras in one opening: at its centre and at points of its rim spread farthest apart.
+const EYES_PER_OPENING: usize = 5;
+/// How near a half the winding number at a point of an opening is when nothing fills it.
+const OPEN_WINDING: f64 = 0.3;
+/// Cameras in all openings, the largest openings first: each renders five faces of a cube map.
+const MAX_EYES: usize = 24;
+
 pub struct OpenViews {
+    /// The orthographic views from directions above the horizon, then the cameras in the
+    /// openings.
     views: Vec<View>,
+    /// How many of `views` are orthographic.
+    sky_views: usize,
+    /// Per camera in an opening, its height: it counts only what lies no higher.
+    eye_heights: Vec<f64>,
+    /// Per view, each pixel's farthest depth over its neighbourhood, one image after another.
     depths: Vec<f32>,
     /// Per view, the farthest depth of each TILE × TILE tile of `depths`.
     tiles: Vec<f32>,
 }
 
 impl OpenViews {
-    /// Renders the views' depth images, on `gpu` when given (shaders/raster.wgsl).
-    pub fn new(mesh: &Mesh, gpu: Option<&Gpu>) -> Result<OpenViews, GpuError> {
+    /// Renders the views' depth images, the orthographic ones on `gpu` when given
+    /// (shaders/raster.wgsl). `boundary` is the mesh's open boundary.
+    pub fn new(mesh: &Mesh, boundary: &[BoundaryEdge], gpu: Option<&Gpu>) -> Result<OpenViews, GpuError> {
         let (center, radius) = mesh.bounding_sphere();
-        let views: Vec<View> = fibonacci_sphere(DIRECTIONS)
+        let mut views: Vec<View> = fibonacci_sphere(DIRECTIONS)
             .into_iter()
             .filter(|d| d.y >= 0.0)
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
-        let images = depth_images(&views, mesh, gpu)?;
+        let sky_views = views.len();
+        let eyes = opening_eyes(mesh, boundary);
+        let mut eye_heights = Vec::new();
+        for eye in eyes {
+            // Not the face looking up: it sees only what is higher than the camera.
+            for view in View::cube_map(eye, PIXELS, 2e-4 * radius)
+                .into_iter()
+                .filter(|v| v.dir.y > -0.5)
+            {
+                views.push(view);
+                eye_heights.push(eye.y);
+            }
+        }
+        let mut images = depth_images(&views[..sky_views], mesh, gpu)?;
+        images.extend(depth_images(&views[sky_views..], mesh, None)?);
         // One after another, as the GPU takes them.
         let mut depths = vec![0f32; images.len() * PIXELS * PIXELS];
         depths
@@ -53,16 +91,33 @@ impl OpenViews {
             .par_chunks_mut((PIXELS / TILE).pow(2))
             .zip(depths.par_chunks(PIXELS * PIXELS))
             .for_each(|(out, depth)| farthest_per_tile(depth, PIXELS, out));
-        Ok(OpenViews { views, depths, tiles })
+        Ok(OpenViews {
+            views,
+            sky_views,
+            eye_heights,
+            depths,
+            tiles,
+        })
     }
 
-    /// Whether some view sees point `p` in front of the original's surface.
+    /// The height of view `view`'s camera when it is one in an opening.
+    fn eye_height(&self, view: usize) -> Option<f64> {
+        view.checked_sub(self.sky_views).map(|e| self.eye_heights[e])
+    }
+
+    /// Whether view `view` sees point `p` in front of the original's surface.
     fn sees(&self, view: usize, p: DVec3) -> bool {
         let v = &self.views[view];
         let q = v.project(p);
         let n = v.pixels as f64;
-        if q.x < 0.0 || q.y < 0.0 || q.x >= n || q.y >= n {
-            return true;
+        let off_image = !(q.x >= 0.0 && q.y >= 0.0 && q.x < n && q.y < n);
+        match self.eye_height(view) {
+            // What the directions above the horizon do not frame lies outside the mesh.
+            None if off_image => return true,
+            // A camera in an opening sees only what lies in front of it, in its face, and no
+            // higher than itself.
+            Some(eye_y) if off_image || q.z <= v.depth_tolerance() || p.y > eye_y => return false,
+            _ => {}
         }
         let depth = self.depths[(view * PIXELS + q.y as usize) * PIXELS + q.x as usize];
         q.z < f64::from(depth) - v.depth_tolerance()
@@ -88,15 +143,24 @@ impl OpenViews {
                 around(x, nx).any(|vx| around(y, ny).any(|vy| around(z, nz).any(|vz| inner[grid.index(vx, vy, vz)])))
             })
             .collect();
-        let seen = match gpu.map(|gpu| self.seen_corners_on(gpu, grid, &needed)) {
+        let sky = 0..self.sky_views;
+        let seen_from_sky = match gpu.map(|gpu| self.seen_corners_on(gpu, grid, &needed)) {
             Some(Ok(seen)) => seen,
             Some(Err(GpuError::Unsupported(why))) => {
                 tracing::debug!("exposed corners on the CPU: {why}");
-                self.seen_corners(grid, &needed)
+                self.seen_corners(grid, &needed, sky)
             }
             Some(Err(e)) => return Err(e),
-            None => self.seen_corners(grid, &needed),
+            None => self.seen_corners(grid, &needed, sky),
         };
+        // The cameras in openings are perspective: the CPU tests them, on either path.
+        let unseen: Vec<bool> = needed.par_iter().zip(&seen_from_sky).map(|(&n, &s)| n && !s).collect();
+        let seen_from_openings = self.seen_corners(grid, &unseen, self.sky_views..self.views.len());
+        let seen: Vec<bool> = seen_from_sky
+            .par_iter()
+            .zip(&seen_from_openings)
+            .map(|(&a, &b)| a || b)
+            .collect();
         let exposed: Vec<usize> = (0..inner.len())
             .into_par_iter()
             .filter(|&i| inner[i] && corners_of(i).any(|c| seen[c]))
@@ -107,8 +171,8 @@ impl OpenViews {
         Ok(exposed.len())
     }
 
-    /// Of the `needed` grid corners (z fastest), those some view sees.
-    fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
+    /// Of the `needed` grid corners (z fastest), those one of `views` sees.
+    fn seen_corners(&self, grid: &Grid, needed: &[bool], views: std::ops::Range<usize>) -> Vec<bool> {
         let [_, ny, nz] = grid.dims;
         needed
             .par_iter()
@@ -116,7 +180,7 @@ impl OpenViews {
             .map(|(c, &needed)| {
                 let (x, y, z) = (c / ((ny + 1) * (nz + 1)), (c / (nz + 1)) % (ny + 1), c % (nz + 1));
                 let p = grid.to_world(DVec3::new(x as f64, y as f64, z as f64));
-                needed && (0..self.views.len()).any(|v| self.sees(v, p))
+                needed && views.clone().any(|v| self.sees(v, p))
             })
             .collect()
     }
@@ -126,8 +190,8 @@ impl OpenViews {
         // From points relative to the grid's origin to corners in voxel units.
         let size = grid.voxel_size;
         let to_corners = |r: [f64; 4]| [r[0] * size, r[1] * size, r[2] * size, r[3]].map(|v| v as f32);
-        let mut rows = Vec::with_capacity(3 * self.views.len());
-        for view in &self.views {
+        let mut rows = Vec::with_capacity(3 * self.sky_views);
+        for view in &self.views[..self.sky_views] {
             let [x, y, mut depth] = view
                 .ortho_rows(grid.origin())
                 .ok_or_else(|| GpuError::Unsupported("the exposure views are orthographic".into()))?;
@@ -142,8 +206,11 @@ impl OpenViews {
             .filter(|&[_, bits]| bits != 0)
             .collect();
         let corner_dims = grid.dims.map(|d| d + 1);
-        let seen =
-            crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, &self.depths, &self.tiles, PIXELS)?;
+        let (depths, tiles) = (
+            &self.depths[..self.sky_views * PIXELS * PIXELS],
+            &self.tiles[..self.sky_views * (PIXELS / TILE).pow(2)],
+        );
+        let seen = crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, depths, tiles, PIXELS)?;
         Ok((0..needed.len())
             .into_par_iter()
             .map(|c| seen[c / 32] & (1 << (c % 32)) != 0)
@@ -156,9 +223,12 @@ impl OpenViews {
     pub fn hides(&self, triangles: &[[DVec3; 3]], closed_convex: bool) -> bool {
         (0..self.views.len()).all(|v| {
             let view = &self.views[v];
+            // Cameras in openings are perspective: a face turned away from their axis may
+            // still face them.
+            let skip_turned_away = closed_convex && self.eye_height(v).is_none();
             triangles
                 .iter()
-                .filter(|t| !closed_convex || (t[1] - t[0]).cross(t[2] - t[0]).dot(view.dir) > 0.0)
+                .filter(|t| !skip_turned_away || (t[1] - t[0]).cross(t[2] - t[0]).dot(view.dir) > 0.0)
                 .all(|t| self.hides_triangle(v, t))
         })
     }
@@ -169,6 +239,14 @@ impl OpenViews {
             &self.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS],
         );
         let tolerance = view.depth_tolerance();
+        if let Some(eye_y) = self.eye_height(v) {
+            // Only what lies no higher than the camera counts.
+            let mut hidden = true;
+            rasterize(view, triangle, |i, d| {
+                hidden &= d >= f64::from(depth[i]) - tolerance || view.unproject(i, d).y > eye_y;
+            });
+            return hidden;
+        }
         // Quick answer: the nearest corner lies behind the farthest depth of every tile under
         // the triangle's screen bounds.
         let corners = triangle.map(|p| view.project(p));
@@ -219,4 +297,82 @@ fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
             out[y * n + x] = far;
         }
     }
+}
+
+/// Where to place cameras in the mesh's openings (connected runs of boundary edges), at most
+/// [`MAX_EYES`], the largest openings first. Each opening gives its centre and points of its rim
+/// spread farthest apart, drawn a fifth of the way towards the centre. A point where the winding
+/// number is near a half lies in a real gap and stays; any other is moved along the opening's
+/// normal to the nearest point outside the solid, so that a camera where another part fills the
+/// opening sees in only through a real gap. Points at the very bottom of the mesh are left out:
+/// nothing lies lower for them to show.
+fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<DVec3> {
+    let mut neighbours: HashMap<u32, Vec<&BoundaryEdge>> = HashMap::new();
+    for e in boundary {
+        neighbours.entry(e.a).or_default().push(e);
+        neighbours.entry(e.b).or_default().push(e);
+    }
+    let mut starts: Vec<u32> = neighbours.keys().copied().collect();
+    starts.sort_unstable();
+    let position = |v: u32| mesh.positions[v as usize].as_dvec3();
+    let mut visited = HashSet::new();
+    // Each opening's rim points and vector area.
+    let mut openings: Vec<(Vec<DVec3>, DVec3)> = Vec::new();
+    for start in starts {
+        let (mut stack, mut rim, mut area) = (vec![start], Vec::new(), DVec3::ZERO);
+        while let Some(v) = stack.pop() {
+            if visited.insert(v) {
+                rim.push(position(v));
+                for e in &neighbours[&v] {
+                    stack.push(if e.a == v { e.b } else { e.a });
+                    // Each edge is met from both ends: counted from its first.
+                    if e.a == v {
+                        area += position(e.a).cross(position(e.b)) * f64::from(e.weight) * 0.5;
+                    }
+                }
+            }
+        }
+        if !rim.is_empty() {
+            openings.push((rim, area));
+        }
+    }
+    let extent = |rim: &[DVec3]| {
+        let (lo, hi) = crate::mesh::point_bounds(rim.iter().copied());
+        (hi - lo).length()
+    };
+    openings.sort_by(|a, b| extent(&b.0).total_cmp(&extent(&a.0)));
+    let (lo, hi) = mesh.bounds();
+    let size = f64::from((hi - lo).length());
+    let bottom = f64::from(lo.y) + 1e-3 * size;
+    let field = WindingField::new(mesh, boundary);
+    let mut eyes = Vec::new();
+    for (rim, area) in &openings {
+        let centre = rim.iter().sum::<DVec3>() / rim.len() as f64;
+        let mut chosen = vec![centre];
+        while chosen.len() < EYES_PER_OPENING.min(rim.len() + 1) {
+            let distance = |p: &DVec3| chosen.iter().map(|c| c.distance(*p)).fold(f64::INFINITY, f64::min);
+            chosen.extend(rim.iter().max_by(|a, b| distance(a).total_cmp(&distance(b))).copied());
+        }
+        let normal = area.try_normalize().unwrap_or(DVec3::Y);
+        let reach = extent(rim).max(1e-3 * size);
+        let in_gap = |p: DVec3| {
+            if (field.winding(p) - 0.5).abs() < OPEN_WINDING {
+                return Some(p);
+            }
+            // Steps of a sixteenth of the opening, both ways, nearest first.
+            (1..=16)
+                .flat_map(|k| [1.0, -1.0].map(|side| p + normal * (side * reach * k as f64 / 16.0)))
+                .find(|&q| field.winding(q) < 0.5)
+        };
+        let points = chosen
+            .iter()
+            .enumerate()
+            .map(|(k, &p)| if k == 0 { p } else { p + (centre - p) * 0.2 });
+        eyes.extend(points.filter_map(in_gap).filter(|p| p.y > bottom));
+        if eyes.len() >= MAX_EYES {
+            eyes.truncate(MAX_EYES);
+            break;
+        }
+    }
+    eyes
 }

@@ -8,8 +8,9 @@ use occluder_cook::mesh::{load_file, topology::orient_closed_components};
 use std::path::Path;
 
 const CLOSED: [&str; 5] = ["spot.obj", "cow.obj", "fandisk.obj", "homer.obj", "duck.glb"];
-const OPEN: [&str; 5] = [
+const OPEN: [&str; 6] = [
     "teapot.obj",
+    "sphere-with-hole.stl",
     "suzanne.obj",
     "kenney-building-small-a.glb",
     "kenney-building-small-c.glb",

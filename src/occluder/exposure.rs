@@ -11,9 +11,9 @@
 //! A small hole lets a camera see in only from a narrow cone of directions, which can fall
 //! between the sampled ones. So cameras are also placed in the openings themselves (a connected
 //! run of boundary edges), looking in: whatever shows through an opening from outside is seen
-//! from some point of it. An outside camera not below a point sees it through the opening only
-//! from a point of the opening at least as high, so these cameras count only what lies no
-//! higher than themselves.
+//! from some point of it, near enough. An outside camera not below a point sees it through the
+//! opening only past a point of the opening at least as high, so these cameras count only what
+//! lies no higher than the opening's highest point.
 
 use crate::eval::raster::{View, depth_images, rasterize};
 use crate::eval::views::fibonacci_sphere;
@@ -47,7 +47,8 @@ pub struct OpenViews {
     views: Vec<View>,
     /// How many of `views` are orthographic.
     sky_views: usize,
-    /// Per camera in an opening, its height: it counts only what lies no higher.
+    /// Per camera in an opening, the height of the highest point of its opening (or its own,
+    /// if higher): it counts only what lies no higher.
     eye_heights: Vec<f64>,
     /// Per view, each pixel's farthest depth over its neighbourhood, one image after another.
     depths: Vec<f32>,
@@ -68,14 +69,14 @@ impl OpenViews {
         let sky_views = views.len();
         let eyes = opening_eyes(mesh, boundary);
         let mut eye_heights = Vec::new();
-        for eye in eyes {
+        for (eye, horizon) in eyes {
             // Not the face looking up: it sees only what is higher than the camera.
             for view in View::cube_map(eye, PIXELS, 2e-4 * radius)
                 .into_iter()
                 .filter(|v| v.dir.y > -0.5)
             {
                 views.push(view);
-                eye_heights.push(eye.y);
+                eye_heights.push(horizon);
             }
         }
         let mut images = depth_images(&views[..sky_views], mesh, gpu)?;
@@ -115,7 +116,7 @@ impl OpenViews {
             // What the directions above the horizon do not frame lies outside the mesh.
             None if off_image => return true,
             // A camera in an opening sees only what lies in front of it, in its face, and no
-            // higher than itself.
+            // higher than its opening.
             Some(eye_y) if off_image || q.z <= v.depth_tolerance() || p.y > eye_y => return false,
             _ => {}
         }
@@ -304,9 +305,10 @@ fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
 /// spread farthest apart, drawn a fifth of the way towards the centre. A point where the winding
 /// number is near a half lies in a real gap and stays; any other is moved along the opening's
 /// normal to the nearest point outside the solid, so that a camera where another part fills the
-/// opening sees in only through a real gap. Points at the very bottom of the mesh are left out:
-/// nothing lies lower for them to show.
-fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<DVec3> {
+/// opening sees in only through a real gap. Each camera comes with the height it counts up to:
+/// its opening's highest point, or its own where it moved higher. Cameras whose height is at the
+/// very bottom of the mesh are left out: nothing lies lower for them to show.
+fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(DVec3, f64)> {
     let mut neighbours: HashMap<u32, Vec<&BoundaryEdge>> = HashMap::new();
     for e in boundary {
         neighbours.entry(e.a).or_default().push(e);
@@ -368,7 +370,13 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<DVec3> {
             .iter()
             .enumerate()
             .map(|(k, &p)| if k == 0 { p } else { p + (centre - p) * 0.2 });
-        eyes.extend(points.filter_map(in_gap).filter(|p| p.y > bottom));
+        let top = rim.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
+        eyes.extend(
+            points
+                .filter_map(in_gap)
+                .map(|p| (p, top.max(p.y)))
+                .filter(|&(_, horizon)| horizon > bottom),
+        );
         if eyes.len() >= MAX_EYES {
             eyes.truncate(MAX_EYES);
             break;

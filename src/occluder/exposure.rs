@@ -38,7 +38,8 @@ const R: usize = 1;
 const EYES_PER_OPENING: usize = 5;
 /// How near a half the winding number at a point of an opening is when nothing fills it.
 const OPEN_WINDING: f64 = 0.3;
-/// Cameras in all openings, the largest openings first: each renders five faces of a cube map.
+/// Cameras in all openings, the largest openings first: each renders five or six faces of a
+/// cube map.
 const MAX_EYES: usize = 24;
 
 pub struct OpenViews {
@@ -49,10 +50,10 @@ pub struct OpenViews {
     sky_views: usize,
     /// Per camera in an opening, the height of the highest point of its opening (or its own,
     /// if higher): it counts only what lies no higher.
-    eye_heights: Vec<f64>,
+    horizons: Vec<f64>,
     /// Per view, each pixel's farthest depth over its neighbourhood, one image after another.
     depths: Vec<f32>,
-    /// Per view, the farthest depth of each TILE × TILE tile of `depths`.
+    /// Per orthographic view, the farthest depth of each TILE × TILE tile of `depths`.
     tiles: Vec<f32>,
 }
 
@@ -68,15 +69,16 @@ impl OpenViews {
             .collect();
         let sky_views = views.len();
         let eyes = opening_eyes(mesh, boundary);
-        let mut eye_heights = Vec::new();
+        let mut horizons = Vec::new();
         for (eye, horizon) in eyes {
-            // Not the face looking up: it sees only what is higher than the camera.
+            // The face looking up sees only what is higher than the camera: it counts only
+            // where the opening reaches higher still.
             for view in View::cube_map(eye, PIXELS, 2e-4 * radius)
                 .into_iter()
-                .filter(|v| v.dir.y > -0.5)
+                .filter(|v| v.dir.y > -0.5 || horizon > eye.y)
             {
                 views.push(view);
-                eye_heights.push(horizon);
+                horizons.push(horizon);
             }
         }
         let mut images = depth_images(&views[..sky_views], mesh, gpu)?;
@@ -87,7 +89,7 @@ impl OpenViews {
             .par_chunks_mut(PIXELS * PIXELS)
             .zip(&images)
             .for_each(|(out, image)| farthest_nearby(image, PIXELS, out));
-        let mut tiles = vec![0f32; images.len() * (PIXELS / TILE).pow(2)];
+        let mut tiles = vec![0f32; sky_views * (PIXELS / TILE).pow(2)];
         tiles
             .par_chunks_mut((PIXELS / TILE).pow(2))
             .zip(depths.par_chunks(PIXELS * PIXELS))
@@ -95,15 +97,15 @@ impl OpenViews {
         Ok(OpenViews {
             views,
             sky_views,
-            eye_heights,
+            horizons,
             depths,
             tiles,
         })
     }
 
-    /// The height of view `view`'s camera when it is one in an opening.
-    fn eye_height(&self, view: usize) -> Option<f64> {
-        view.checked_sub(self.sky_views).map(|e| self.eye_heights[e])
+    /// For a camera in an opening, the height up to which it counts what it sees.
+    fn horizon(&self, view: usize) -> Option<f64> {
+        view.checked_sub(self.sky_views).map(|e| self.horizons[e])
     }
 
     /// Whether view `view` sees point `p` in front of the original's surface.
@@ -112,12 +114,12 @@ impl OpenViews {
         let q = v.project(p);
         let n = v.pixels as f64;
         let off_image = !(q.x >= 0.0 && q.y >= 0.0 && q.x < n && q.y < n);
-        match self.eye_height(view) {
+        match self.horizon(view) {
             // What the directions above the horizon do not frame lies outside the mesh.
             None if off_image => return true,
             // A camera in an opening sees only what lies in front of it, in its face, and no
             // higher than its opening.
-            Some(eye_y) if off_image || q.z <= v.depth_tolerance() || p.y > eye_y => return false,
+            Some(horizon) if off_image || q.z <= v.depth_tolerance() || p.y > horizon => return false,
             _ => {}
         }
         let depth = self.depths[(view * PIXELS + q.y as usize) * PIXELS + q.x as usize];
@@ -207,11 +209,8 @@ impl OpenViews {
             .filter(|&[_, bits]| bits != 0)
             .collect();
         let corner_dims = grid.dims.map(|d| d + 1);
-        let (depths, tiles) = (
-            &self.depths[..self.sky_views * PIXELS * PIXELS],
-            &self.tiles[..self.sky_views * (PIXELS / TILE).pow(2)],
-        );
-        let seen = crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, depths, tiles, PIXELS)?;
+        let depths = &self.depths[..self.sky_views * PIXELS * PIXELS];
+        let seen = crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, depths, &self.tiles, PIXELS)?;
         Ok((0..needed.len())
             .into_par_iter()
             .map(|c| seen[c / 32] & (1 << (c % 32)) != 0)
@@ -226,7 +225,7 @@ impl OpenViews {
             let view = &self.views[v];
             // Cameras in openings are perspective: a face turned away from their axis may
             // still face them.
-            let skip_turned_away = closed_convex && self.eye_height(v).is_none();
+            let skip_turned_away = closed_convex && self.horizon(v).is_none();
             triangles
                 .iter()
                 .filter(|t| !skip_turned_away || (t[1] - t[0]).cross(t[2] - t[0]).dot(view.dir) > 0.0)
@@ -240,11 +239,11 @@ impl OpenViews {
             &self.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS],
         );
         let tolerance = view.depth_tolerance();
-        if let Some(eye_y) = self.eye_height(v) {
-            // Only what lies no higher than the camera counts.
+        if let Some(horizon) = self.horizon(v) {
+            // Only what lies no higher than the opening counts.
             let mut hidden = true;
             rasterize(view, triangle, |i, d| {
-                hidden &= d >= f64::from(depth[i]) - tolerance || view.unproject(i, d).y > eye_y;
+                hidden &= d >= f64::from(depth[i]) - tolerance || view.unproject(i, d).y > horizon;
             });
             return hidden;
         }

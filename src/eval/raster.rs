@@ -130,19 +130,41 @@ impl View {
     /// `origin`, as (x, y, z, 1), to [`View::project`]'s pixel x, pixel y and depth. None for
     /// perspective views.
     pub fn ortho_rows(&self, origin: DVec3) -> Option<[[f64; 4]; 3]> {
-        let (Lens::Orthographic { center, radius }, Some(scale)) = (self.lens, self.ortho_scale()) else {
-            return None;
-        };
-        let offset = origin - center;
+        let [x, y, _, depth] = self.projection_rows(origin);
+        matches!(self.lens, Lens::Orthographic { .. }).then_some([x, y, depth])
+    }
+
+    /// For the GPU (shaders/exposure.wgsl): four rows X, Y, W, Z taking a point relative to
+    /// `origin`, as (x, y, z, 1), to [`View::project`]'s pixel (X / W, Y / W) and depth Z. W is 1
+    /// for an orthographic view and the depth for a perspective one.
+    pub fn projection_rows(&self, origin: DVec3) -> [[f64; 4]; 4] {
         let row = |axis: DVec3, scale: f64, constant: f64| {
             let v = axis * scale;
-            [v.x, v.y, v.z, offset.dot(axis) * scale + constant]
+            [v.x, v.y, v.z, constant]
         };
-        Some([
-            row(self.right, scale, radius * scale),
-            row(self.up, scale, radius * scale),
-            row(-self.dir, 1.0, radius),
-        ])
+        let half = self.pixels as f64 / 2.0;
+        match self.lens {
+            Lens::Orthographic { center, radius } => {
+                let scale = half / radius;
+                let offset = origin - center;
+                [
+                    row(self.right, scale, (offset.dot(self.right) + radius) * scale),
+                    row(self.up, scale, (offset.dot(self.up) + radius) * scale),
+                    [0.0, 0.0, 0.0, 1.0],
+                    row(-self.dir, 1.0, radius - offset.dot(self.dir)),
+                ]
+            }
+            Lens::Perspective { eye } => {
+                let offset = origin - eye;
+                let depth = row(-self.dir, 1.0, -offset.dot(self.dir));
+                // Pixel x = (right · d / depth + 1) · half, so X = half · (right · d + depth).
+                let numerator = |axis: DVec3| {
+                    let r = row(axis, 1.0, offset.dot(axis));
+                    [0, 1, 2, 3].map(|k| half * (r[k] + depth[k]))
+                };
+                [numerator(self.right), numerator(self.up), depth, depth]
+            }
+        }
     }
 
     /// Pixels per unit of length of an orthographic view; None for perspective views.
@@ -337,6 +359,24 @@ pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
 mod tests {
     use super::View;
     use glam::DVec3;
+
+    #[test]
+    fn projection_rows_project_as_the_view_does() {
+        let origin = DVec3::new(0.5, 0.25, -1.0);
+        let views = [
+            View::new(DVec3::new(0.2, 0.9, -0.4), DVec3::new(1.0, 2.0, 3.0), 5.0, 64),
+            View::perspective(DVec3::new(0.3, -1.0, 2.0), DVec3::new(-0.5, 0.1, 0.8), 64, 1e-3),
+        ];
+        for view in views {
+            let rows = view.projection_rows(origin);
+            for p in [DVec3::new(1.0, 2.0, 3.0), DVec3::new(-0.7, -2.0, 0.4)] {
+                let h = (p - origin).extend(1.0);
+                let [x, y, w, z] = rows.map(|r| glam::DVec4::from_array(r).dot(h));
+                let q = view.project(p);
+                assert!(DVec3::new(x / w, y / w, z).distance(q) < 1e-9, "{q}");
+            }
+        }
+    }
 
     #[test]
     fn unproject_undoes_project_at_pixel_centres() {

@@ -9,13 +9,12 @@ const SHADER: &str = include_str!("../../shaders/exposure.wgsl");
 /// Built when the device opens, like the voxel stages' entry points.
 pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "seen_corners")];
 
-/// The length of the shader's uniform array of view rows.
-const VIEW_ROWS: usize = 768;
+/// The length of the shader's uniform array of view rows: five a view.
+const VIEW_ROWS: usize = 1600;
 
 /// The corners of a grid of `corner_dims` (z fastest) that a view sees, one bit each, testing
-/// only those set in `needed`: (word, its bits) for each word with a bit set. `rows` holds
-/// three rows a view, taking a corner in voxel units to its pixel x, pixel y and depth plus the
-/// view's tolerance; `depths` the views' images of `pixels` × `pixels`, one after another, and
+/// only those set in `needed`: (word, its bits) for each word with a bit set. `rows` holds five
+/// rows a view as the shader reads them; `depths` the views' images of `pixels` × `pixels`, one after another, and
 /// `tiles` the farthest depth of each of their tiles of [`TILE`] × [`TILE`] pixels.
 /// `Unsupported` where an input exceeds a binding or the shader's arrays.
 pub fn seen_corners(
@@ -43,7 +42,7 @@ pub fn seen_corners(
             corner_dims[1] as u32,
             corner_dims[2] as u32,
             words,
-            (rows.len() / 3) as u32,
+            (rows.len() / 5) as u32,
             pixels as u32,
         ]);
         let (needed, views) = (gpu.upload(needed), gpu.uniform(rows, VIEW_ROWS));

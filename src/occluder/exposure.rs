@@ -53,7 +53,7 @@ pub struct OpenViews {
     horizons: Vec<f64>,
     /// Per view, each pixel's farthest depth over its neighbourhood, one image after another.
     depths: Vec<f32>,
-    /// Per orthographic view, the farthest depth of each TILE × TILE tile of `depths`.
+    /// Per view, the farthest depth of each TILE × TILE tile of `depths`.
     tiles: Vec<f32>,
 }
 
@@ -81,6 +81,7 @@ impl OpenViews {
                 horizons.push(horizon);
             }
         }
+        // The GPU rasterizer draws orthographic views only.
         let mut images = depth_images(&views[..sky_views], mesh, gpu)?;
         images.extend(depth_images(&views[sky_views..], mesh, None)?);
         // One after another, as the GPU takes them.
@@ -89,7 +90,7 @@ impl OpenViews {
             .par_chunks_mut(PIXELS * PIXELS)
             .zip(&images)
             .for_each(|(out, image)| farthest_nearby(image, PIXELS, out));
-        let mut tiles = vec![0f32; sky_views * (PIXELS / TILE).pow(2)];
+        let mut tiles = vec![0f32; views.len() * (PIXELS / TILE).pow(2)];
         tiles
             .par_chunks_mut((PIXELS / TILE).pow(2))
             .zip(depths.par_chunks(PIXELS * PIXELS))
@@ -146,24 +147,15 @@ impl OpenViews {
                 around(x, nx).any(|vx| around(y, ny).any(|vy| around(z, nz).any(|vz| inner[grid.index(vx, vy, vz)])))
             })
             .collect();
-        let sky = 0..self.sky_views;
-        let seen_from_sky = match gpu.map(|gpu| self.seen_corners_on(gpu, grid, &needed)) {
+        let seen = match gpu.map(|gpu| self.seen_corners_on(gpu, grid, &needed)) {
             Some(Ok(seen)) => seen,
             Some(Err(GpuError::Unsupported(why))) => {
                 tracing::debug!("exposed corners on the CPU: {why}");
-                self.seen_corners(grid, &needed, sky)
+                self.seen_corners(grid, &needed)
             }
             Some(Err(e)) => return Err(e),
-            None => self.seen_corners(grid, &needed, sky),
+            None => self.seen_corners(grid, &needed),
         };
-        // The cameras in openings are perspective: the CPU tests them, on either path.
-        let unseen: Vec<bool> = needed.par_iter().zip(&seen_from_sky).map(|(&n, &s)| n && !s).collect();
-        let seen_from_openings = self.seen_corners(grid, &unseen, self.sky_views..self.views.len());
-        let seen: Vec<bool> = seen_from_sky
-            .par_iter()
-            .zip(&seen_from_openings)
-            .map(|(&a, &b)| a || b)
-            .collect();
         let exposed: Vec<usize> = (0..inner.len())
             .into_par_iter()
             .filter(|&i| inner[i] && corners_of(i).any(|c| seen[c]))
@@ -174,8 +166,8 @@ impl OpenViews {
         Ok(exposed.len())
     }
 
-    /// Of the `needed` grid corners (z fastest), those one of `views` sees.
-    fn seen_corners(&self, grid: &Grid, needed: &[bool], views: std::ops::Range<usize>) -> Vec<bool> {
+    /// Of the `needed` grid corners (z fastest), those some view sees.
+    fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
         let [_, ny, nz] = grid.dims;
         needed
             .par_iter()
@@ -183,7 +175,7 @@ impl OpenViews {
             .map(|(c, &needed)| {
                 let (x, y, z) = (c / ((ny + 1) * (nz + 1)), (c / (nz + 1)) % (ny + 1), c % (nz + 1));
                 let p = grid.to_world(DVec3::new(x as f64, y as f64, z as f64));
-                needed && views.clone().any(|v| self.sees(v, p))
+                needed && (0..self.views.len()).any(|v| self.sees(v, p))
             })
             .collect()
     }
@@ -193,14 +185,17 @@ impl OpenViews {
         // From points relative to the grid's origin to corners in voxel units.
         let size = grid.voxel_size;
         let to_corners = |r: [f64; 4]| [r[0] * size, r[1] * size, r[2] * size, r[3]].map(|v| v as f32);
-        let mut rows = Vec::with_capacity(3 * self.sky_views);
-        for view in &self.views[..self.sky_views] {
-            let [x, y, mut depth] = view
-                .ortho_rows(grid.origin())
-                .ok_or_else(|| GpuError::Unsupported("the exposure views are orthographic".into()))?;
+        let mut rows = Vec::with_capacity(5 * self.views.len());
+        for (v, view) in self.views.iter().enumerate() {
+            let [x, y, w, mut depth] = view.projection_rows(grid.origin());
             // "In front of the depth by more than the tolerance", as one comparison.
             depth[3] += view.depth_tolerance();
-            rows.extend([x, y, depth].map(to_corners));
+            rows.extend([x, y, w, depth].map(to_corners));
+            let limits = match self.horizon(v) {
+                Some(horizon) => [(horizon - grid.origin().y) / size, 1.0, view.depth_tolerance(), 0.0],
+                None => [f64::from(f32::MAX), 0.0, 0.0, 0.0],
+            };
+            rows.push(limits.map(|l| l as f32));
         }
         let words: Vec<[u32; 2]> = needed
             .par_chunks(32)
@@ -209,8 +204,8 @@ impl OpenViews {
             .filter(|&[_, bits]| bits != 0)
             .collect();
         let corner_dims = grid.dims.map(|d| d + 1);
-        let depths = &self.depths[..self.sky_views * PIXELS * PIXELS];
-        let seen = crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, depths, &self.tiles, PIXELS)?;
+        let seen =
+            crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, &self.depths, &self.tiles, PIXELS)?;
         Ok((0..needed.len())
             .into_par_iter()
             .map(|c| seen[c / 32] & (1 << (c % 32)) != 0)

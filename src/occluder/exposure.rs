@@ -35,7 +35,7 @@ pub(crate) const TILE: usize = 8;
 const R: usize = 1;
 
 /// Cameras in one opening: at its centre and at points of its rim spread farthest apart.
-const EYES_PER_OPENING: usize = 5;
+const EYES_PER_OPENING: usize = 3;
 /// How near a half the winding number at a point of an opening is when nothing fills it.
 const OPEN_WINDING: f64 = 0.3;
 /// Cameras in all openings, the largest openings first: each renders five or six faces of a

@@ -312,8 +312,12 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(DVec3, f64)> {
     starts.sort_unstable();
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
     let mut visited = HashSet::new();
-    // Each opening's rim points and vector area.
-    let mut openings: Vec<(Vec<DVec3>, DVec3)> = Vec::new();
+    let extent = |rim: &[DVec3]| {
+        let (lo, hi) = crate::mesh::point_bounds(rim.iter().copied());
+        (hi - lo).length()
+    };
+    // Each opening's rim points, vector area and extent.
+    let mut openings: Vec<(Vec<DVec3>, DVec3, f64)> = Vec::new();
     for start in starts {
         let (mut stack, mut rim, mut area) = (vec![start], Vec::new(), DVec3::ZERO);
         while let Some(v) = stack.pop() {
@@ -329,20 +333,17 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(DVec3, f64)> {
             }
         }
         if !rim.is_empty() {
-            openings.push((rim, area));
+            let size = extent(&rim);
+            openings.push((rim, area, size));
         }
     }
-    let extent = |rim: &[DVec3]| {
-        let (lo, hi) = crate::mesh::point_bounds(rim.iter().copied());
-        (hi - lo).length()
-    };
-    openings.sort_by(|a, b| extent(&b.0).total_cmp(&extent(&a.0)));
+    openings.sort_by(|a, b| b.2.total_cmp(&a.2));
     let (lo, hi) = mesh.bounds();
     let size = f64::from((hi - lo).length());
     let bottom = f64::from(lo.y) + 1e-3 * size;
     let field = WindingField::new(mesh, boundary);
     let mut eyes = Vec::new();
-    for (rim, area) in &openings {
+    for (rim, area, opening_size) in &openings {
         let centre = rim.iter().sum::<DVec3>() / rim.len() as f64;
         let mut chosen = vec![centre];
         while chosen.len() < EYES_PER_OPENING.min(rim.len() + 1) {
@@ -350,7 +351,7 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(DVec3, f64)> {
             chosen.extend(rim.iter().max_by(|a, b| distance(a).total_cmp(&distance(b))).copied());
         }
         let normal = area.try_normalize().unwrap_or(DVec3::Y);
-        let reach = extent(rim).max(1e-3 * size);
+        let reach = opening_size.max(1e-3 * size);
         let in_gap = |p: DVec3| {
             if (field.winding(p) - 0.5).abs() < OPEN_WINDING {
                 return Some(p);

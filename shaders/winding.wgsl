@@ -5,8 +5,12 @@
 // STRIDE voxels, interpolated between where that is safe) and writes 1 for inside.
 
 @group(0) @binding(2) var<storage, read_write> sums: array<atomic<i32>>;
-// Boundary edges: a.xyz, b.xyz, weight, padding.
-@group(0) @binding(3) var<storage, read> boundary: array<f32>;
+// Boundary edges, two rows each: (a, weight), (b, unused). The first UNIFORM_EDGES are in a
+// uniform buffer, which a software adapter reads once for all lanes where it reads storage
+// lane by lane; the rest, if any, in storage.
+const UNIFORM_EDGES: u32 = 2048u;
+@group(0) @binding(3) var<uniform> boundary: array<vec4<f32>, 4096>;
+@group(0) @binding(6) var<storage, read> more_boundary: array<vec4<f32>>;
 // 1 for inside, 0 for outside.
 @group(0) @binding(5) var<storage, read_write> inside: array<u32>;
 
@@ -37,11 +41,14 @@ fn curtain_angle(a: vec3<f32>, b: vec3<f32>) -> f32 {
 
 fn curtain(p: vec3<f32>) -> f32 {
     var sum = 0.0;
-    for (var e = 0u; e < params.boundary_edges; e++) {
-        let i = 8u * e;
-        let a = vec3<f32>(boundary[i], boundary[i + 1u], boundary[i + 2u]) - p;
-        let b = vec3<f32>(boundary[i + 3u], boundary[i + 4u], boundary[i + 5u]) - p;
-        sum += boundary[i + 6u] * curtain_angle(a, b);
+    let edges = params.boundary_edges;
+    for (var e = 0u; e < min(edges, UNIFORM_EDGES); e++) {
+        let a = boundary[2u * e];
+        sum += a.w * curtain_angle(a.xyz - p, boundary[2u * e + 1u].xyz - p);
+    }
+    for (var e = 0u; e + UNIFORM_EDGES < edges; e++) {
+        let a = more_boundary[2u * e];
+        sum += a.w * curtain_angle(a.xyz - p, more_boundary[2u * e + 1u].xyz - p);
     }
     return sum / (4.0 * PI);
 }

@@ -90,6 +90,26 @@ fn gpu_stages_match_their_cpu_twins_on_synthetic_shapes() {
 }
 
 #[test]
+fn winding_reads_open_edges_past_its_uniform_buffer_from_storage() {
+    let Some(gpu) = device() else { return };
+    // 1100 small separate triangles below a box open at +z: their 3300 open edges come first
+    // and fill the 2048 the shader holds in its uniform buffer, so the box's own open edges,
+    // without which none of its voxels counts as inside, are read from storage.
+    let mut mesh = Mesh::default();
+    for i in 0..1100u32 {
+        let o = Vec3::new((i % 40) as f32 * 0.1 - 2.0, -3.0, (i / 40) as f32 * 0.1 - 2.0);
+        mesh.positions.extend([o, o + Vec3::X * 0.02, o + Vec3::Z * 0.02]);
+        mesh.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
+    }
+    let mesh = concat(&[mesh, cuboid(Vec3::splat(-1.0), Vec3::new(1.0, 2.0, 1.0), &[5])]);
+    let edges = orient_closed_components(&mut mesh.clone()).boundary.len();
+    assert!(edges > 3300, "{edges} open edges");
+    for resolution in [17, 32] {
+        compare(&gpu, "open box over 1100 triangles", mesh.clone(), resolution);
+    }
+}
+
+#[test]
 fn gpu_stages_match_their_cpu_twins_on_corpus_meshes() {
     let Some(gpu) = device() else { return };
     let Some(dir) = common::corpus() else { return };

@@ -427,11 +427,11 @@ impl Gpu {
     }
 
     pub fn upload<T: bytemuck::Pod>(&self, data: &[T]) -> wgpu::Buffer {
-        // Zero-sized bindings are invalid; an empty array still gets one word.
+        // Zero-sized bindings are invalid; an empty array still gets room for one vec4.
         let bytes: &[u8] = bytemuck::cast_slice(data);
         let padded;
         let contents = if bytes.is_empty() {
-            padded = [0u8; 4];
+            padded = [0u8; 16];
             &padded[..]
         } else {
             bytes

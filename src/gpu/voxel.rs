@@ -39,6 +39,9 @@ pub const ENTRY_POINTS: [(&str, &str); 5] = [
 const TRIANGLE_BYTES: u64 = 36;
 /// Loop iterations one invocation may spend, with a margin under llvmpipe's 65535.
 const LOOP_BUDGET: usize = 50_000;
+/// Boundary edges the winding shader reads from its uniform buffer (`UNIFORM_EDGES` in
+/// winding.wgsl); the rest come from storage.
+const UNIFORM_EDGES: usize = 2048;
 /// The CPU twin's sample spacing along a column (`STRIDE` in winding.wgsl).
 const STRIDE: usize = 8;
 
@@ -212,14 +215,18 @@ pub fn winding(gpu: &Gpu, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -
         let [_, ny, nz] = grid.dims;
         let layer = ny * nz;
         let chunks = triangle_chunks(gpu, mesh, grid)?;
-        let edges: Vec<f32> = boundary
+        let edges: Vec<[f32; 4]> = boundary
             .iter()
             .flat_map(|e| {
                 let [a, b] = [e.a, e.b].map(|v| grid.local(mesh.positions[v as usize].as_dvec3()));
-                [a[0], a[1], a[2], b[0], b[1], b[2], e.weight as f32, 0.0]
+                [[a[0], a[1], a[2], e.weight as f32], [b[0], b[1], b[2], 0.0]]
             })
             .collect();
-        let edges = gpu.upload(&edges);
+        let split = edges.len().min(2 * UNIFORM_EDGES);
+        let (edges, more_edges) = (
+            gpu.uniform(&edges[..split], 2 * UNIFORM_EDGES),
+            gpu.upload(&edges[split..]),
+        );
         let mut voxels = vec![false; grid.len()];
         // Signed sums and inside flags: 8 bytes a voxel.
         for slab in slabs(gpu, grid, layer as u64 * 4)? {
@@ -235,7 +242,7 @@ pub fn winding(gpu: &Gpu, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -
             gpu.dispatch(
                 WINDING,
                 "classify",
-                &[(0, &p), (2, &sums), (3, &edges), (5, &inside)],
+                &[(0, &p), (2, &sums), (3, &edges), (5, &inside), (6, &more_edges)],
                 groups(columns * segments),
             );
             let flags: Vec<u32> = gpu.read(&inside)?;

@@ -81,9 +81,12 @@ impl OpenViews {
                 horizons.push(horizon);
             }
         }
-        // The GPU rasterizer draws orthographic views only.
-        let mut images = depth_images(&views[..sky_views], mesh, gpu)?;
-        images.extend(depth_images(&views[sky_views..], mesh, None)?);
+        // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
+        // openings meanwhile.
+        let (sky, eyes) = views.split_at(sky_views);
+        let (sky_images, eye_images) = rayon::join(|| depth_images(sky, mesh, gpu), || depth_images(eyes, mesh, None));
+        let mut images = sky_images?;
+        images.extend(eye_images?);
         // One after another, as the GPU takes them.
         let mut depths = vec![0f32; images.len() * PIXELS * PIXELS];
         depths

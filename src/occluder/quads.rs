@@ -263,6 +263,11 @@ struct PlaneCells {
     t: f64,
     cells: Vec<(usize, usize)>,
     best: Option<CellRect>,
+    /// The cells of `best`; while `stale`, only an upper bound on them.
+    bound: usize,
+    /// Not searched since the open cells last changed under `best`: at first, and after a
+    /// taken rectangle overlaps it.
+    stale: bool,
 }
 
 impl PlaneCells {
@@ -272,7 +277,14 @@ impl PlaneCells {
             .enumerate()
             .filter_map(|(c, g)| gap_at(g, t, margin).map(|k| (c, k)))
             .collect();
-        PlaneCells { t, cells, best: None }
+        // No rectangle has more cells than the plane has open.
+        PlaneCells {
+            t,
+            bound: cells.len(),
+            cells,
+            best: None,
+            stale: true,
+        }
     }
 
     /// Recomputes `best` over the cells whose gap is unused. Used gaps stay used, so they leave
@@ -280,6 +292,8 @@ impl PlaneCells {
     fn update(&mut self, gaps: &[Vec<Gap>], nv: usize) {
         self.cells.retain(|&(c, k)| !gaps[c][k].used);
         self.best = None;
+        self.bound = 0;
+        self.stale = false;
         if self.cells.is_empty() {
             return;
         }
@@ -303,32 +317,34 @@ impl PlaneCells {
                 u: r.u.map(|u| u + bounds.u[0]),
                 v: r.v.map(|v| v + bounds.v[0]),
             });
+        self.bound = self.best.map_or(0, |r| r.cells());
     }
 }
 
 /// Greedy: the largest open rectangle over all candidate planes, then the next on what is left.
-/// Taking a rectangle uses gaps only in its cells, so only planes whose best rectangle meets it
-/// need a new search.
+/// A plane is searched only once an upper bound on its rectangle leads all others: its open
+/// cells at first; after a taken rectangle meets its best, that best. These are lazy greedy
+/// picks, the same as searching every plane at first and again whenever it loses cells.
 fn best_rectangles(g: &AxisGrid, mut gaps: Vec<Vec<Gap>>, planes: &[f64], margin: f64) -> Vec<Panel> {
     let nv = g.dims[1];
-    let mut candidates: Vec<PlaneCells> = planes
-        .par_iter()
-        .map(|&t| {
-            let mut p = PlaneCells::new(&gaps, t, margin);
-            p.update(&gaps, nv);
-            p
-        })
-        .collect();
+    let mut candidates: Vec<PlaneCells> = planes.par_iter().map(|&t| PlaneCells::new(&gaps, t, margin)).collect();
     let mut quads = Vec::new();
     while quads.len() < MAX_PER_AXIS {
-        let Some(best) = candidates
-            .iter()
-            .filter_map(|p| p.best.map(|r| (r, p.t)))
-            .max_by(|a, b| a.0.cells().cmp(&b.0.cells()).then(b.1.total_cmp(&a.1)))
+        let Some(top) = (0..candidates.len())
+            .filter(|&i| candidates[i].bound > 0)
+            .max_by(|&a, &b| {
+                let (a, b) = (&candidates[a], &candidates[b]);
+                a.bound.cmp(&b.bound).then(b.t.total_cmp(&a.t))
+            })
         else {
             break;
         };
-        let (rect, plane) = best;
+        let candidate = &mut candidates[top];
+        if candidate.stale {
+            candidate.update(&gaps, nv);
+            continue;
+        }
+        let (rect, plane) = (candidate.best.expect("a fresh bound counts its best"), candidate.t);
         // Centre the quad in the heights that every cell of the rectangle leaves open.
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
         for (u, v) in rect.iter() {
@@ -340,10 +356,9 @@ fn best_rectangles(g: &AxisGrid, mut gaps: Vec<Vec<Gap>>, planes: &[f64], margin
         }
         let overlaps =
             |r: &CellRect| r.u[0] < rect.u[1] && rect.u[0] < r.u[1] && r.v[0] < rect.v[1] && rect.v[0] < r.v[1];
-        candidates
-            .par_iter_mut()
-            .filter(|p| p.best.as_ref().is_some_and(overlaps))
-            .for_each(|p| p.update(&gaps, nv));
+        for p in candidates.iter_mut().filter(|p| p.best.as_ref().is_some_and(overlaps)) {
+            p.stale = true;
+        }
         let t = 0.5 * (lo + hi);
         let u = rect.u.map(|k| g.origin[0] + k as f64 * g.cell);
         let v = rect.v.map(|k| g.origin[1] + k as f64 * g.cell);

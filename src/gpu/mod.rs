@@ -444,7 +444,7 @@ impl Gpu {
     }
 
     /// A uniform buffer of `data` zero-padded to `len` elements: a shader's fixed-size array,
-    /// for small tables every lane reads (the views' rows).
+    /// for small tables every lane reads (views' rows, the winding stage's open edges).
     pub fn uniform<T: bytemuck::Pod>(&self, data: &[T], len: usize) -> wgpu::Buffer {
         let mut padded = data.to_vec();
         padded.resize(len.max(data.len()), T::zeroed());

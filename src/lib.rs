@@ -6,6 +6,7 @@
 //! content-addressed cache.
 
 pub mod bench;
+pub mod camera;
 pub mod config;
 pub mod cook;
 pub mod eval;
@@ -14,5 +15,7 @@ pub mod key;
 pub mod level;
 pub mod mesh;
 pub mod occluder;
+pub mod raster;
 pub mod service;
+pub mod store;
 pub mod voxel;

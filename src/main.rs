@@ -400,7 +400,7 @@ fn run(cli: Cli) -> Result<()> {
             let level = occluder_cook::level::load(&manifest)?;
             let dir = settings.service.data_dir();
             std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-            let store = service::store::sled::SledStore::open(&dir)
+            let store = occluder_cook::store::sled::SledStore::open(&dir)
                 .with_context(|| "the cache is in use (a server on the same data_dir?): pass --data-dir".to_string())?;
             let bar = indicatif::ProgressBar::new(0);
             bar.set_style(

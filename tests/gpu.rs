@@ -5,10 +5,11 @@
 mod common;
 use common::{concat, cuboid, torus};
 use glam::Vec3;
-use occluder_cook::eval::raster::{View, depth_image};
+use occluder_cook::camera::View;
 use occluder_cook::gpu::{self, Gpu, GpuError};
 use occluder_cook::mesh::{Mesh, load_file, topology::orient_closed_components};
 use occluder_cook::occluder::exposure::OpenViews;
+use occluder_cook::raster::depth_image;
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
 use std::sync::Arc;
 
@@ -36,7 +37,7 @@ fn compare(gpu: &Gpu, name: &str, mut mesh: Mesh, resolution: usize) -> usize {
     let on_cpu = |method| common::solid(method, &mesh, &topology, &grid, None);
 
     let (g, c) = (
-        gpu::voxel::surface(gpu, &mesh, &grid).expect("GPU surface"),
+        surface::gpu::voxelize(gpu, &mesh, &grid).expect("GPU surface"),
         surface::voxelize(&mesh, &grid),
     );
     assert_eq!(differ(&g, &c), 0, "{name} @{resolution}: surface voxels differ");
@@ -144,7 +145,7 @@ fn a_triangle_spanning_the_grid_is_split_under_the_drivers_loop_limit() {
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, 160);
     let (g, c) = (
-        gpu::voxel::surface(&gpu, &mesh, &grid).expect("GPU surface"),
+        surface::gpu::voxelize(&gpu, &mesh, &grid).expect("GPU surface"),
         surface::voxelize(&mesh, &grid),
     );
     assert!(c.iter().filter(|&&v| v).count() > 30_000);
@@ -200,7 +201,7 @@ fn grids_larger_than_a_binding_are_done_in_slabs() {
         let whole = common::solid(method, &mesh, &topology, &grid, Some(&gpu));
         assert_eq!(sliced, whole, "{method:?}");
     }
-    let sliced = gpu::voxel::surface(&small, &mesh, &grid).expect("slabs run");
+    let sliced = surface::gpu::voxelize(&small, &mesh, &grid).expect("slabs run");
     assert_eq!(sliced, surface::voxelize(&mesh, &grid));
 }
 
@@ -260,11 +261,11 @@ fn gpu_depth_images_match_the_cpu_rasterizer() {
     }
     for (name, mesh) in meshes {
         let (center, radius) = mesh.bounding_sphere();
-        let views: Vec<View> = occluder_cook::eval::views::fibonacci_sphere(12)
+        let views: Vec<View> = occluder_cook::camera::fibonacci_sphere(12)
             .into_iter()
             .map(|d| View::new(d, center, radius, 256))
             .collect();
-        let images = gpu::raster::depth_images(&gpu, &mesh, &views).expect("GPU depth images");
+        let images = occluder_cook::raster::gpu::depth_images(&gpu, &mesh, &views).expect("GPU depth images");
         let tolerance = 2e-4 * radius as f32;
         let (mut covered, mut differ) = (0, 0);
         for (view, image) in views.iter().zip(&images) {
@@ -280,7 +281,7 @@ fn gpu_depth_images_match_the_cpu_rasterizer() {
         );
         // A mesh or image larger than one binding is drawn by the twin instead.
         let tiny = gpu.with_max_binding(16);
-        let fallback = occluder_cook::eval::raster::depth_images(&views[..2], &mesh, Some(&tiny)).expect("CPU images");
+        let fallback = occluder_cook::raster::depth_images(&views[..2], &mesh, Some(&tiny)).expect("CPU images");
         assert_eq!(
             fallback,
             views[..2].iter().map(|v| depth_image(v, &mesh)).collect::<Vec<_>>()
@@ -342,10 +343,10 @@ fn a_stage_that_cannot_fit_the_device_fails_that_call_alone() {
     // A binding smaller than one layer of the grid: the stage must refuse, not write out of
     // bounds or crash, and the device must serve the next call.
     let tiny = gpu.with_max_binding(16);
-    let error = gpu::voxel::surface(&tiny, &mesh, &grid).expect_err("one layer cannot fit");
+    let error = surface::gpu::voxelize(&tiny, &mesh, &grid).expect_err("one layer cannot fit");
     assert!(matches!(error, GpuError::OutOfMemory(_)), "{error}");
     assert!(error.to_string().contains("storage binding"), "{error}");
-    let next = gpu::voxel::surface(&gpu, &mesh, &grid).expect("the device still works");
+    let next = surface::gpu::voxelize(&gpu, &mesh, &grid).expect("the device still works");
     assert_eq!(next, surface::voxelize(&mesh, &grid));
 }
 

@@ -1,10 +1,10 @@
 //! Coverage, false pixels and outside samples, as DESIGN.md defines them.
 
 use super::proximity::SurfaceIndex;
-use super::raster::{View, depth_images};
-use super::views::fibonacci_sphere;
+use crate::camera::{View, fibonacci_sphere};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
+use crate::raster::depth_images;
 use crate::voxel::winding::WindingField;
 use glam::DVec3;
 use rayon::prelude::*;

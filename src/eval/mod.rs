@@ -3,7 +3,5 @@
 
 pub mod metrics;
 pub mod proximity;
-pub mod raster;
-pub mod views;
 
 pub use metrics::{EvalSettings, Quality, ViewSet, evaluate};

@@ -10,12 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
-pub mod cpsv;
-pub mod cull;
-pub mod exposure;
-pub mod raster;
 mod timer;
-pub mod voxel;
 
 /// Where the GPU stages run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -169,16 +164,6 @@ fn open() -> Result<Gpu, GpuError> {
         pipelines: Arc::new(Mutex::new(HashMap::new())),
         timer: None,
     };
-    gpu.run(|gpu| {
-        for (source, entry) in voxel::ENTRY_POINTS
-            .into_iter()
-            .chain(raster::ENTRY_POINTS)
-            .chain(exposure::ENTRY_POINTS)
-        {
-            gpu.pipeline(source, entry);
-        }
-        Ok(())
-    })?;
     Ok(gpu)
 }
 
@@ -462,6 +447,17 @@ impl Gpu {
             size: bytes.max(4).next_multiple_of(4),
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
+        })
+    }
+
+    /// Builds the compute pipelines of `entry_points` (shader source, entry) now, so that no
+    /// later pass pays for their compilation; each is built once a device.
+    pub fn build_pipelines(&self, entry_points: &[(&'static str, &'static str)]) -> Result<(), GpuError> {
+        self.run(|gpu| {
+            for &(source, entry) in entry_points {
+                gpu.pipeline(source, entry);
+            }
+            Ok(())
         })
     }
 

@@ -9,11 +9,15 @@
 //! random height in the lower half, looking in a random horizontal direction with a 90° field
 //! of view.
 
+pub mod gpu;
+
 use super::{Level, MeshRef};
-use crate::eval::raster::{View, rasterize, rasterize_inner};
-use crate::gpu::{Gpu, cull::InstanceScene};
+use crate::camera::View;
+use crate::gpu::Gpu;
 use crate::mesh::{Mesh, load_file, point_bounds};
+use crate::raster::{rasterize, rasterize_inner};
 use glam::{DMat4, DVec3};
+use gpu::InstanceScene;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::HashMap;

@@ -12,7 +12,7 @@ use crate::config::Settings;
 use crate::cook::cook;
 use crate::key::cache_key;
 use crate::mesh::{Format, Mesh, glb, load_bytes, point_bounds};
-use crate::service::store::{Input, ResultMeta, Store};
+use crate::store::{Input, ResultMeta, Store, StoreError, job::now_ms};
 use batch::Placed;
 use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
@@ -271,7 +271,7 @@ pub async fn bake(
 ) -> Result<Baked, LevelError> {
     let mut timings = crate::cook::Timings::default();
     let started = Instant::now();
-    let cache = |e: crate::service::store::StoreError| LevelError::Cache(e.to_string());
+    let cache = |e: StoreError| LevelError::Cache(e.to_string());
     let mut unique: Vec<&MeshRef> = level.instances.iter().map(|(m, _)| m).collect();
     unique.sort_by_key(|m| m.label());
     unique.dedup();
@@ -369,7 +369,7 @@ pub async fn bake(
         let meta = ResultMeta {
             job: "level".into(),
             bytes: (glb.len() + report.len()) as u64,
-            created_ms: crate::service::job::now_ms(),
+            created_ms: now_ms(),
         };
         store.put_result(&key, &glb, &report, &meta).await.map_err(cache)?;
         stored.push((key.clone(), meta.bytes));

@@ -15,10 +15,12 @@
 //! opening only past a point of the opening at least as high, so these cameras count only what
 //! lies no higher than the opening's highest point.
 
-use crate::eval::raster::{View, depth_images, rasterize};
-use crate::eval::views::fibonacci_sphere;
+pub mod gpu;
+
+use crate::camera::{View, fibonacci_sphere};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
+use crate::raster::{depth_images, rasterize};
 use crate::voxel::Grid;
 use crate::voxel::winding::WindingField;
 use glam::DVec3;
@@ -207,8 +209,7 @@ impl OpenViews {
             .filter(|&[_, bits]| bits != 0)
             .collect();
         let corner_dims = grid.dims.map(|d| d + 1);
-        let seen =
-            crate::gpu::exposure::seen_corners(gpu, corner_dims, &words, &rows, &self.depths, &self.tiles, PIXELS)?;
+        let seen = gpu::seen_corners(gpu, corner_dims, &words, &rows, &self.depths, &self.tiles, PIXELS)?;
         Ok((0..needed.len())
             .into_par_iter()
             .map(|c| seen[c / 32] & (1 << (c % 32)) != 0)

@@ -1,11 +1,11 @@
 //! The HTTP API (axum). Every error is JSON: `{"error":{"code":"...","message":"..."}}`.
 
-use super::job::{Job, JobError};
-use super::store::Input;
 use super::{Service, SubmitError, Submitted};
 use crate::config::{self, ConfigError};
 use crate::key::cache_key;
 use crate::mesh::{Format, load_bytes};
+use crate::store::Input;
+use crate::store::job::{Job, JobError};
 use axum::Json;
 use axum::body::Body;
 use axum::extract::multipart::{Multipart, MultipartError, MultipartRejection};
@@ -54,8 +54,8 @@ pub struct AppState {
         ErrorDetail,
         Job,
         JobError,
-        super::job::JobState,
-        super::job::JobKind
+        crate::store::job::JobState,
+        crate::store::job::JobKind
     ))
 )]
 pub struct ApiDoc;

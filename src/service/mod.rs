@@ -8,16 +8,14 @@
 
 pub mod api;
 pub mod client;
-pub mod job;
-pub mod store;
 
 use crate::config::Settings;
 use crate::cook::cook_with_progress;
-use job::{Job, JobError, JobKind, JobState, now_ms};
+use crate::store::job::{self, Job, JobError, JobKind, JobState, now_ms};
+use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreResult};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use store::{Delivery, Input, ResultMeta, Store, StoreResult};
 use tokio::sync::watch;
 
 /// Shared by the API handlers and the workers.

@@ -13,12 +13,15 @@
 //! largest first, in batches, until every cell is decided or none is left to try; undecided
 //! cells count as outside, so the result stays conservative.
 
+pub mod gpu;
+
 use super::Grid;
-use crate::eval::raster::{View, rasterize};
-use crate::gpu::cpsv::{CubeMaps, Seed};
+use crate::camera::View;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
+use crate::raster::rasterize;
 use glam::DVec3;
+use gpu::{CubeMaps, Seed};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

@@ -1,11 +1,12 @@
 //! Voxelization: the grid, the surface voxels, and the inside/outside classification.
 //!
-//! Each stage works on flat `Vec<bool>` grids indexed by [`Grid::index`]. The surface, parity and
-//! winding stages have GPU twins in [`crate::gpu::voxel`]; given a device, these functions run
-//! those.
+//! Each stage works on flat `Vec<bool>` grids indexed by [`Grid::index`]. The surface, parity,
+//! winding and cpsv stages have GPU twins, each in its stage's `gpu` module beside it; given a
+//! device, these functions run those.
 
 pub mod columns;
 pub mod cpsv;
+mod gpu;
 pub mod grid;
 pub mod parity;
 pub mod surface;
@@ -32,7 +33,7 @@ pub enum InsideMethod {
 /// Which voxels some triangle touches, on `gpu` when given.
 pub fn surface(mesh: &Mesh, grid: &Grid, gpu: Option<&Gpu>) -> Result<Vec<bool>, GpuError> {
     match gpu {
-        Some(gpu) => crate::gpu::voxel::surface(gpu, mesh, grid),
+        Some(gpu) => surface::gpu::voxelize(gpu, mesh, grid),
         None => Ok(surface::voxelize(mesh, grid)),
     }
 }
@@ -66,8 +67,8 @@ pub fn classify(
     }
     if let Some(gpu) = gpu {
         return match method {
-            InsideMethod::Parity => crate::gpu::voxel::parity(gpu, mesh, grid),
-            _ => crate::gpu::voxel::winding(gpu, mesh, &topology.boundary, grid),
+            InsideMethod::Parity => parity::gpu::classify(gpu, mesh, grid),
+            _ => winding::gpu::classify(gpu, mesh, &topology.boundary, grid),
         }
         .map(solid);
     }

@@ -1,6 +1,8 @@
 //! Parity solid voxelization (Schwarz & Seidel 2010): a voxel is inside when an odd number of
 //! surface crossings lie above its centre. Correct only for watertight meshes.
 
+pub mod gpu;
+
 use super::{Grid, columns::ColumnCrossings};
 
 pub fn classify(crossings: &ColumnCrossings, grid: &Grid) -> Vec<bool> {

@@ -2,6 +2,8 @@
 //! separating-axis triangle/box test of Akenine-Möller. The CPU twin of `shaders/surface.wgsl`:
 //! the same f32 arithmetic in voxel units, term by term, so both mark the same voxels.
 
+pub mod gpu;
+
 use super::Grid;
 use crate::mesh::Mesh;
 use num_traits::Float;

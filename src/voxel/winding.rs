@@ -11,6 +11,8 @@
 //!
 //! Closed meshes have no boundary edges and cost one column pass.
 
+pub mod gpu;
+
 use super::{Grid, columns::ColumnCrossings, columns::column_hit};
 use crate::mesh::{BoundaryEdge, Mesh};
 use glam::{DVec2, DVec3};

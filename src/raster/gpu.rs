@@ -1,8 +1,8 @@
 //! Host code for shaders/raster.wgsl: depth images of a mesh from orthographic views, rasterized
-//! in compute, read back in one go. The twin is [`crate::eval::raster::depth_image`].
+//! in compute, read back in one go. The twin is [`super::depth_image`].
 
-use super::{Gpu, GpuError, WORKGROUP};
-use crate::eval::raster::View;
+use crate::camera::View;
+use crate::gpu::{Gpu, GpuError, WORKGROUP};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 
@@ -25,7 +25,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
     let Some(pixels) = views.first().map(|v| v.pixels) else {
         return Ok(Vec::new());
     };
-    let (origin, positions) = super::centred_positions(mesh);
+    let (origin, positions) = crate::gpu::centred_positions(mesh);
     let mut rows: Vec<[f32; 4]> = Vec::with_capacity(3 * views.len());
     let mut scale = 0f64;
     for view in views {

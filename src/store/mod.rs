@@ -1,16 +1,17 @@
-//! Where the service keeps jobs, uploaded inputs and results, and how jobs reach the workers:
-//! one trait, so that the API and the workers do not know which storage they run on.
+//! Where jobs, uploaded inputs and results are kept, and how jobs reach the workers: one trait,
+//! so that the service, its workers and level bakes do not know which storage they run on.
 //! [`sled::SledStore`] is the embedded one for a single machine; [`nats::NatsStore`] keeps
 //! everything in NATS JetStream, for API and worker nodes spread over many machines.
 //!
 //! Blobs are stored sealed with their BLAKE3 hash; a blob that fails the check on read is
 //! deleted and reported missing, never returned.
 
+pub mod job;
 pub mod nats;
 pub mod sled;
 
-use super::job::Job;
 use async_trait::async_trait;
+use job::Job;
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 

@@ -1,15 +1,15 @@
 //! Host code for shaders/cull.wgsl: a level's placed meshes in one vertex buffer, rendered per
 //! camera into an instance-id target over a reversed float depth buffer; the ids left are the
 //! instances with at least one visible pixel. The twin is `ground_truth` in
-//! [`crate::level::cull`].
+//! [`super`].
 
-use super::{Gpu, GpuError};
-use crate::eval::raster::View;
+use crate::camera::View;
+use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, depth_attachment, depth_test, render_target};
 use glam::DVec3;
 use std::ops::Range;
 use wgpu::util::DeviceExt;
 
-const SHADER: &str = include_str!("../../shaders/cull.wgsl");
+const SHADER: &str = include_str!("../../../shaders/cull.wgsl");
 const IDS: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 /// What a pixel holds where nothing is drawn.
 const NONE: u32 = u32::MAX;
@@ -74,7 +74,7 @@ impl<'a> InstanceScene<'a> {
             },
             // Both sides, as the twin draws them.
             primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: Some(super::depth_test(wgpu::CompareFunction::Greater)),
+            depth_stencil: Some(depth_test(wgpu::CompareFunction::Greater)),
             multisample: Default::default(),
             fragment: Some(wgpu::FragmentState {
                 module: &module,
@@ -93,13 +93,13 @@ impl<'a> InstanceScene<'a> {
             ranges,
             pipeline,
             pixels,
-            ids: super::render_target(
+            ids: render_target(
                 gpu,
                 IDS,
                 pixels,
                 wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             ),
-            depth: super::render_target(gpu, super::DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT),
+            depth: render_target(gpu, DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT),
         }
     }
 
@@ -145,7 +145,7 @@ impl<'a> InstanceScene<'a> {
                             store: wgpu::StoreOp::Store,
                         },
                     })],
-                    depth_stencil_attachment: Some(super::depth_attachment(&depth, 0.0, false)),
+                    depth_stencil_attachment: Some(depth_attachment(&depth, 0.0, false)),
                     timestamp_writes: stamp.as_ref().map(|s| s.render()),
                     occlusion_query_set: None,
                     multiview_mask: None,

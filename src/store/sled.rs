@@ -1,8 +1,8 @@
 //! The embedded store: one sled database with a tree per kind of record, and the work queue in
 //! memory, rebuilt on open from the jobs a previous run left unfinished.
 
+use super::job::{Job, JobState, now_ms};
 use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
-use crate::service::job::{Job, JobState, now_ms};
 use async_trait::async_trait;
 use std::collections::{HashMap, VecDeque};
 use std::path::Path;

@@ -1,10 +1,10 @@
 //! Host code for shaders/exposure.wgsl: which grid corners the exposure test's views see. The
-//! twin is [`crate::occluder::exposure::OpenViews::remove_exposed`].
+//! twin is [`super::OpenViews::remove_exposed`].
 
-use super::{Gpu, GpuError};
-use crate::occluder::exposure::TILE;
+use super::TILE;
+use crate::gpu::{Gpu, GpuError};
 
-const SHADER: &str = include_str!("../../shaders/exposure.wgsl");
+const SHADER: &str = include_str!("../../../shaders/exposure.wgsl");
 
 /// Built when the device opens, like the voxel stages' entry points.
 pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "seen_corners")];

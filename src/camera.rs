@@ -1,13 +1,11 @@
-//! Software rasterization at pixel centres: depth images of meshes and coverage masks of boxes,
-//! through orthographic cameras around a mesh or perspective cameras inside it.
+//! Cameras shared by the stages that draw a mesh (depth images, exposure, selection,
+//! evaluation, cull-eval): orthographic views framing a sphere, perspective views from a point,
+//! their projections, and evenly spread view directions. Imports nothing of the pipeline.
 
-use crate::gpu::{Gpu, GpuError};
-use crate::mesh::Mesh;
-use glam::{DVec2, DVec3};
-use rayon::prelude::*;
+use glam::DVec3;
 
 #[derive(Clone, Copy, Debug)]
-enum Lens {
+pub(crate) enum Lens {
     /// Framing the sphere (center, radius).
     Orthographic { center: DVec3, radius: f64 },
     /// A 90° field of view from `eye`.
@@ -21,7 +19,7 @@ pub struct View {
     pub dir: DVec3,
     right: DVec3,
     up: DVec3,
-    lens: Lens,
+    pub(crate) lens: Lens,
     pub pixels: usize,
     tolerance: f64,
 }
@@ -181,178 +179,17 @@ impl View {
     }
 }
 
-/// Calls `visit(pixel index, depth)` for every pixel centre the projected triangle covers.
-/// Edges are inclusive, so triangles sharing an edge leave no crack.
-pub fn rasterize(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f64)) {
-    rasterize_with(view, tri, Coverage::Centres, visit);
-}
-
-/// Like [`rasterize`], but only pixels the triangle covers whole, each with the farthest depth
-/// over the pixel: what an occluder certainly hides at this resolution.
-pub fn rasterize_inner(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f64)) {
-    rasterize_with(view, tri, Coverage::Whole, visit);
-}
-
-#[derive(Clone, Copy, PartialEq)]
-enum Coverage {
-    /// Pixels whose centre the triangle covers, at the centre's depth.
-    Centres,
-    /// Pixels wholly inside the triangle, at the farthest depth of their corners.
-    Whole,
-}
-
-fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, mut visit: impl FnMut(usize, f64)) {
-    match view.lens {
-        Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), coverage, |d| d, &mut visit),
-        Lens::Perspective { eye } => {
-            // Clip to the near plane in front of the eye; 1/z is what varies linearly on screen.
-            let near = view.tolerance;
-            let z = tri.map(|v| -(v - eye).dot(view.dir));
-            let mut poly: Vec<DVec3> = Vec::with_capacity(4);
-            for k in 0..3 {
-                let (a, b) = (k, (k + 1) % 3);
-                if z[a] >= near {
-                    poly.push(tri[a]);
-                }
-                if (z[a] >= near) != (z[b] >= near) {
-                    let s = (near - z[a]) / (z[b] - z[a]);
-                    poly.push(tri[a] + (tri[b] - tri[a]) * s);
-                }
-            }
-            for k in 1..poly.len().saturating_sub(1) {
-                let p = [poly[0], poly[k], poly[k + 1]].map(|v| {
-                    let q = view.project(v);
-                    DVec3::new(q.x, q.y, 1.0 / q.z)
-                });
-                fill(view, p, coverage, |w| 1.0 / w, &mut visit);
-            }
-        }
-    }
-}
-
-/// Visits the pixels of the screen triangle `p` (x, y, a value that varies linearly on screen)
-/// by `coverage`, with `depth` turning the interpolated value into a depth.
-fn fill(
-    view: &View,
-    p: [DVec3; 3],
-    coverage: Coverage,
-    depth: impl Fn(f64) -> f64,
-    visit: &mut impl FnMut(usize, f64),
-) {
-    let q = p.map(|v| v.truncate());
-    let lo = q[0].min(q[1]).min(q[2]);
-    let hi = q[0].max(q[1]).max(q[2]);
-    let n = view.pixels as f64;
-    // The pixels i whose sample points (the centre i + 0.5, or the whole [i, i + 1]) lie in
-    // [lo, hi]. Most triangles of a detailed mesh cover none, so this comes first, without
-    // rounding calls.
-    let (inset, reach) = match coverage {
-        Coverage::Centres => (0.5, 0.5),
-        Coverage::Whole => (0.0, 1.0),
-    };
-    let pixels = |lo: f64, hi: f64| -> Option<(usize, usize)> {
-        let (a, b) = ((lo - inset).max(0.0), (hi - reach).min(n - 1.0));
-        // Also rejects NaN.
-        if a.partial_cmp(&b).is_none_or(|o| o.is_gt()) {
-            return None;
-        }
-        let first = a as usize + usize::from((a as usize as f64) < a);
-        let last = b as usize;
-        (first <= last).then_some((first, last))
-    };
-    let (Some((x0, x1)), Some((y0, y1))) = (pixels(lo.x, hi.x), pixels(lo.y, hi.y)) else {
-        return;
-    };
-    let area = cross(q[1] - q[0], q[2] - q[0]);
-    if area == 0.0 || !area.is_finite() {
-        return;
-    }
-    let weights = |c: DVec2| {
-        [
-            cross(q[2] - q[1], c - q[1]) / area,
-            cross(q[0] - q[2], c - q[2]) / area,
-            cross(q[1] - q[0], c - q[0]) / area,
-        ]
-    };
-    let value = |w: [f64; 3]| w[0] * p[0].z + w[1] * p[1].z + w[2] * p[2].z;
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let (x_f, y_f) = (x as f64, y as f64);
-            match coverage {
-                Coverage::Centres => {
-                    let w = weights(DVec2::new(x_f + 0.5, y_f + 0.5));
-                    if w.iter().all(|&v| v >= 0.0) {
-                        visit(y * view.pixels + x, depth(value(w)));
-                    }
-                }
-                Coverage::Whole => {
-                    let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
-                        .map(|(dx, dy)| weights(DVec2::new(x_f + dx, y_f + dy)));
-                    if corners.iter().flatten().all(|&v| v >= 0.0) {
-                        let farthest = corners
-                            .iter()
-                            .map(|&w| depth(value(w)))
-                            .fold(f64::NEG_INFINITY, f64::max);
-                        visit(y * view.pixels + x, farthest);
-                    }
-                }
-            }
-        }
-    }
-}
-
-fn cross(a: DVec2, b: DVec2) -> f64 {
-    a.x * b.y - a.y * b.x
-}
-
-/// Calls `visit(pixel index, depth)` for every pixel centre each triangle of `mesh` covers.
-/// Orthographic views project each vertex once.
-pub fn rasterize_mesh(view: &View, mesh: &Mesh, mut visit: impl FnMut(usize, f64)) {
-    match view.lens {
-        Lens::Orthographic { .. } => {
-            let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
-            for t in &mesh.triangles {
-                fill(
-                    view,
-                    t.map(|i| projected[i as usize]),
-                    Coverage::Centres,
-                    |d| d,
-                    &mut visit,
-                );
-            }
-        }
-        Lens::Perspective { .. } => {
-            for tri in mesh.triangles_f64() {
-                rasterize(view, &tri, &mut visit);
-            }
-        }
-    }
-}
-
-/// The nearest depth per pixel, `f32::INFINITY` where nothing is drawn.
-pub fn depth_image(view: &View, mesh: &Mesh) -> Vec<f32> {
-    let mut depth = vec![f32::INFINITY; view.pixels * view.pixels];
-    rasterize_mesh(view, mesh, |i, d| depth[i] = depth[i].min(d as f32));
-    depth
-}
-
-/// Depth images of `mesh` in `views`: on `gpu` where one is given and can draw them
-/// (orthographic views, a mesh within one storage binding), else on the CPU.
-pub fn depth_images(views: &[View], mesh: &Mesh, gpu: Option<&Gpu>) -> Result<Vec<Vec<f32>>, GpuError> {
-    if let Some(gpu) = gpu {
-        match crate::gpu::raster::depth_images(gpu, mesh, views) {
-            Err(GpuError::Unsupported(why)) => tracing::debug!("depth images on the CPU: {why}"),
-            drawn => return drawn,
-        }
-    }
-    Ok(views.par_iter().map(|view| depth_image(view, mesh)).collect())
-}
-
-/// A coverage bitmask, one bit per pixel.
-pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
-    let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
-    rasterize_mesh(view, mesh, |i, _| mask[i / 64] |= 1 << (i % 64));
-    mask
+/// `n` unit directions evenly spread over the sphere; y is up.
+pub fn fibonacci_sphere(n: usize) -> Vec<DVec3> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let y = 1.0 - (2 * i + 1) as f64 / n as f64;
+            let r = (1.0 - y * y).sqrt();
+            let phi = golden * i as f64;
+            DVec3::new(r * phi.cos(), y, r * phi.sin())
+        })
+        .collect()
 }
 
 #[cfg(test)]

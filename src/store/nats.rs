@@ -7,9 +7,9 @@
 //! `max_deliver + 1` times: the last time only to mark it failed, so that a mesh that keeps
 //! killing workers ends as a failed job instead of vanishing.
 
+use super::job::{Job, now_ms};
 use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
 use crate::config::ServiceSettings;
-use crate::service::job::{Job, now_ms};
 use async_nats::jetstream::{self, AckKind, consumer, kv, object_store, stream};
 use async_trait::async_trait;
 use futures_util::StreamExt;

@@ -1,14 +1,14 @@
 //! Host code for shaders/cpsv.wgsl: a batch of seeds' cube maps rendered (a render pass per
 //! face, the nearest surface's depth signed by its side), their back-face pixels counted by a
 //! compute pass, and the votes of the decided seeds cast by another. The twin is
-//! [`crate::voxel::cpsv`].
+//! [`super`].
 
-use super::{Gpu, GpuError};
-use crate::eval::raster::View;
+use crate::camera::View;
+use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, MeshBuffers, depth_attachment, mesh_pipeline, render_target};
 use crate::mesh::Mesh;
 use glam::DVec3;
 
-const SHADER: &str = include_str!("../../shaders/cpsv.wgsl");
+const SHADER: &str = include_str!("../../../shaders/cpsv.wgsl");
 const IMAGE: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
 
 /// `Params` in shaders/cpsv.wgsl.
@@ -43,7 +43,7 @@ pub struct Seed {
 /// pipeline, and the cells' corners (relative to the mesh's origin).
 pub struct CubeMaps<'a> {
     gpu: &'a Gpu,
-    buffers: super::MeshBuffers,
+    buffers: MeshBuffers,
     pipeline: wgpu::RenderPipeline,
     pixels: u32,
     corners: Vec<[[f32; 3]; 2]>,
@@ -54,7 +54,7 @@ impl<'a> CubeMaps<'a> {
     /// seeds vote in.
     pub fn new(gpu: &'a Gpu, mesh: &Mesh, pixels: u32, cells: &[[DVec3; 2]]) -> Result<CubeMaps<'a>, GpuError> {
         gpu.run(|device| {
-            let buffers = super::MeshBuffers::new(device, mesh);
+            let buffers = MeshBuffers::new(device, mesh);
             let origin = buffers.origin;
             let corners = cells
                 .iter()
@@ -64,7 +64,7 @@ impl<'a> CubeMaps<'a> {
                 gpu,
                 buffers,
                 // Both sides drawn (which one shows is the point), nearest kept: reversed depth.
-                pipeline: super::mesh_pipeline(device, SHADER, wgpu::CompareFunction::Greater, Some(("side", IMAGE))),
+                pipeline: mesh_pipeline(device, SHADER, wgpu::CompareFunction::Greater, Some(("side", IMAGE))),
                 pixels,
                 corners,
             })
@@ -104,13 +104,13 @@ impl<'a> CubeMaps<'a> {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let image = super::render_target(
+        let image = render_target(
             gpu,
             IMAGE,
             pixels,
             wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
         );
-        let depth = super::render_target(gpu, super::DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT);
+        let depth = render_target(gpu, DEPTH_FORMAT, pixels, wgpu::TextureUsages::RENDER_ATTACHMENT);
         let (image_view, depth_view) = (
             image.create_view(&Default::default()),
             depth.create_view(&Default::default()),
@@ -141,7 +141,7 @@ impl<'a> CubeMaps<'a> {
                     },
                 };
                 // Reversed depth (near / w): cleared to 0, nearer is greater.
-                let depth = super::depth_attachment(&depth_view, 0.0, false);
+                let depth = depth_attachment(&depth_view, 0.0, false);
                 buffers.draw(gpu, &mut encoder, pipeline, &clip, Some(color), depth);
                 encoder.copy_texture_to_buffer(
                     image.as_image_copy(),

@@ -1,0 +1,204 @@
+//! What a cook returns: the occluder, its GLB, and the report of every stage.
+
+use crate::eval::Quality;
+use crate::mesh::{IngestStats, Topology, glb};
+use crate::occluder::{Occluder, Panel, Shape, WorldBox, boxes::VoxelBox, panel_mesh};
+use crate::voxel::{Classified, Grid, cpsv::CpsvStats};
+use serde::Serialize;
+
+/// How long each stage took, in milliseconds, in pipeline order.
+#[derive(Clone, Debug, Default)]
+pub struct Timings(pub Vec<(String, f64)>);
+
+impl Serialize for Timings {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(Some(self.0.len()))?;
+        for (stage, ms) in &self.0 {
+            map.serialize_entry(stage, ms)?;
+        }
+        map.end()
+    }
+}
+
+impl Timings {
+    /// A stage that runs in several places adds up under one name.
+    pub(super) fn add(&mut self, stage: &str, ms: f64) {
+        match self.0.iter_mut().find(|(s, _)| s == stage) {
+            Some((_, total)) => *total += ms,
+            None => self.0.push((stage.to_string(), ms)),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    pub fn total(&self) -> f64 {
+        self.0.iter().map(|(_, ms)| ms).sum()
+    }
+
+    pub fn get(&self, stage: &str) -> f64 {
+        self.0.iter().find(|(s, _)| s == stage).map_or(0.0, |(_, ms)| *ms)
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub pipeline_version: &'static str,
+    pub key: String,
+    pub input: InputReport,
+    pub grid: Grid,
+    pub voxels: VoxelReport,
+    pub boxes: BoxReport,
+    pub panels: PanelReport,
+    pub occluder: OccluderReport,
+    /// The device that ran the voxel stages: "cpu", or the GPU adapter's name.
+    pub device: String,
+    /// The stages that ran on that GPU.
+    pub gpu_stages: Vec<&'static str>,
+    /// Wall-clock milliseconds per stage, waits for the device included.
+    pub timings_ms: Timings,
+    /// The device's own milliseconds per stage: its passes, from timestamp queries. Empty on
+    /// the CPU and on adapters without timestamps.
+    #[serde(skip_serializing_if = "Timings::is_empty")]
+    pub device_timings_ms: Timings,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quality: Option<Quality>,
+    /// Why the occluder is empty or smaller than asked, in words.
+    pub notes: Vec<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct InputReport {
+    #[serde(flatten)]
+    pub ingest: IngestStats,
+    pub triangles: usize,
+    #[serde(flatten)]
+    pub topology: Topology,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct VoxelReport {
+    pub surface: usize,
+    pub solid: usize,
+    pub inner: usize,
+    /// Inner voxels left out because they show through an opening (open meshes only).
+    pub exposed: usize,
+    /// Cells, seeds and undecided cells of `inside = "cpsv"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cpsv: Option<CpsvStats>,
+}
+
+impl VoxelReport {
+    pub(super) fn new(surface: &[bool], inside: &Classified, inner: usize, exposed: usize) -> VoxelReport {
+        VoxelReport {
+            surface: surface.iter().filter(|&&v| v).count(),
+            solid: inside.solid.iter().filter(|&&v| v).count(),
+            inner,
+            exposed,
+            cpsv: inside.cpsv.clone(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct BoxReport {
+    pub candidates: usize,
+    /// Candidates rejected because they show through an opening (open meshes only).
+    pub exposed: usize,
+    pub kept: usize,
+    /// Share of the inner voxels that the kept boxes fill.
+    pub inner_volume_covered: f64,
+    pub kept_boxes: Vec<WorldBox>,
+}
+
+impl BoxReport {
+    /// `voxel_boxes` as expanded, `candidates` those that do not show through an opening, and
+    /// `kept` the indices of the chosen ones; `inner` counts the inner voxels.
+    pub(super) fn new(voxel_boxes: &[VoxelBox], candidates: &[WorldBox], kept: &[usize], inner: usize) -> BoxReport {
+        let kept_voxels: usize = kept.iter().map(|&i| voxel_boxes[i].voxels()).sum();
+        BoxReport {
+            candidates: voxel_boxes.len(),
+            exposed: voxel_boxes.len() - candidates.len(),
+            kept: kept.len(),
+            inner_volume_covered: if inner > 0 {
+                kept_voxels as f64 / inner as f64
+            } else {
+                0.0
+            },
+            kept_boxes: kept.iter().map(|&i| candidates[i]).collect(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct PanelReport {
+    /// In-solid quads found, before selection.
+    pub quad_candidates: usize,
+    /// On-surface patches found, before selection.
+    pub patch_candidates: usize,
+    /// Quads rejected because they show through an opening (open meshes only).
+    pub exposed: usize,
+    pub kept_panels: Vec<Panel>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct OccluderReport {
+    pub triangles: usize,
+    pub vertices: usize,
+    pub boxes: usize,
+    pub quads: usize,
+    pub patches: usize,
+    /// Silhouette share each piece added when it was chosen, in the order chosen.
+    pub silhouette_gains: Vec<f64>,
+}
+
+impl OccluderReport {
+    pub(super) fn new(occluder: &Occluder, boxes: usize, silhouette_gains: Vec<f64>) -> OccluderReport {
+        OccluderReport {
+            triangles: occluder.triangles(),
+            vertices: occluder.solid.positions.len() + 4 * occluder.panels.len(),
+            boxes,
+            quads: occluder.panels.iter().filter(|p| p.shape == Shape::Quads).count(),
+            patches: occluder.panels.iter().filter(|p| p.shape == Shape::Patches).count(),
+            silhouette_gains,
+        }
+    }
+}
+
+pub struct Cooked {
+    pub occluder: Occluder,
+    pub report: Report,
+}
+
+impl Cooked {
+    /// The occluder as a GLB: the watertight solid and the double-sided panels as two
+    /// primitives, with the key and counts in `extras`.
+    pub fn glb(&self) -> Vec<u8> {
+        let r = &self.report;
+        let extras = serde_json::json!({
+            "key": r.key,
+            "pipeline_version": r.pipeline_version,
+            "source_triangles": r.input.triangles,
+            "boxes": r.occluder.boxes,
+            "quads": r.occluder.quads,
+            "patches": r.occluder.patches,
+            "triangles": r.occluder.triangles,
+        });
+        let panels = panel_mesh(&self.occluder.panels);
+        let parts = [
+            glb::Part {
+                name: "occluder-solid",
+                mesh: &self.occluder.solid,
+                double_sided: false,
+            },
+            glb::Part {
+                name: "occluder-panels",
+                mesh: &panels,
+                double_sided: true,
+            },
+        ];
+        glb::write(&parts, extras)
+    }
+}

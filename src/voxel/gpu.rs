@@ -1,0 +1,171 @@
+//! Host plumbing the voxel shaders share (shaders/common.wgsl): grids larger than one storage
+//! binding are processed in slabs of x layers, and meshes with more triangles than one binding
+//! holds in chunks, so the adapter's limits bound memory, not what can be cooked. Work is split
+//! into items small enough that no invocation loops more than llvmpipe allows (65535
+//! iterations; past that it silently stops). Each stage's own host code sits beside its twin:
+//! `surface/gpu.rs`, `parity/gpu.rs`, `winding/gpu.rs`.
+
+use super::Grid;
+use super::surface::SLACK;
+use crate::gpu::{Gpu, GpuError, WORKGROUP};
+use crate::mesh::Mesh;
+use std::ops::Range;
+
+/// A voxel stage's shader: shaders/common.wgsl followed by `shaders/<file>`.
+macro_rules! voxel_shader {
+    ($file:literal) => {
+        concat!(
+            include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/common.wgsl")),
+            include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/", $file))
+        )
+    };
+}
+pub(super) use voxel_shader;
+
+/// Bytes of one triangle's corners on the GPU.
+const TRIANGLE_BYTES: u64 = 36;
+/// Loop iterations one invocation may spend, with a margin under llvmpipe's 65535.
+pub(super) const LOOP_BUDGET: usize = 50_000;
+
+/// `Params` in shaders/common.wgsl.
+pub(super) fn params(
+    grid: &Grid,
+    slab: &Range<usize>,
+    items: usize,
+    boundary_edges: usize,
+    segment: usize,
+) -> [u32; 9] {
+    let [nx, ny, nz] = grid.dims.map(|d| d as u32);
+    [
+        nx,
+        ny,
+        nz,
+        slab.start as u32,
+        slab.end as u32,
+        items as u32,
+        boundary_edges as u32,
+        (0.5 + SLACK).to_bits(),
+        segment as u32,
+    ]
+}
+
+/// Ranges of x layers whose output, `layer_bytes` each, fits one binding.
+pub(super) fn slabs(gpu: &Gpu, grid: &Grid, layer_bytes: u64) -> Result<Vec<Range<usize>>, GpuError> {
+    let per_slab = (gpu.max_binding / layer_bytes.max(1)) as usize;
+    if per_slab == 0 {
+        return Err(GpuError::OutOfMemory(format!(
+            "one layer of the grid ({layer_bytes} bytes) exceeds the adapter's largest storage binding ({} bytes)",
+            gpu.max_binding
+        )));
+    }
+    let nx = grid.dims[0];
+    Ok((0..nx).step_by(per_slab).map(|x| x..(x + per_slab).min(nx)).collect())
+}
+
+/// What a triangle pass walks over each triangle's bounds.
+#[derive(Clone, Copy)]
+pub(super) enum Units {
+    /// Voxels, each one loop iteration.
+    Voxels,
+    /// Columns, each up to a column's words of bit flips.
+    Columns,
+}
+
+/// A chunk of triangles on the device, their corners in voxel units.
+pub(super) struct Chunk {
+    triangles: Vec<[[f32; 3]; 3]>,
+    buffer: wgpu::Buffer,
+}
+
+pub(super) fn triangle_chunks(gpu: &Gpu, mesh: &Mesh, grid: &Grid) -> Result<Vec<Chunk>, GpuError> {
+    let triangles = grid.local_triangles(mesh);
+    let per_chunk = (gpu.max_binding / TRIANGLE_BYTES) as usize;
+    if per_chunk == 0 {
+        return Err(GpuError::OutOfMemory(format!(
+            "one triangle exceeds the adapter's largest storage binding ({} bytes)",
+            gpu.max_binding
+        )));
+    }
+    Ok(triangles
+        .chunks(per_chunk)
+        .map(|c| Chunk {
+            triangles: c.to_vec(),
+            buffer: gpu.upload(c),
+        })
+        .collect())
+}
+
+/// The work items of one chunk over one slab: (triangle, first unit, end unit, 0), numbered as
+/// `slab_bounds` in common.wgsl does, each within the loop budget.
+fn work_items(chunk: &Chunk, grid: &Grid, slab: &Range<usize>, units: Units) -> Vec<[u32; 4]> {
+    let per_item = match units {
+        Units::Voxels => LOOP_BUDGET,
+        Units::Columns => LOOP_BUDGET / (grid.dims[2].div_ceil(32) + 2),
+    };
+    let mut items = Vec::new();
+    for (t, tri) in chunk.triangles.iter().enumerate() {
+        let [xs, ys, zs] = Grid::local_spans(tri, grid.dims);
+        let x = xs.start.max(slab.start)..xs.end.min(slab.end);
+        let count = x.len()
+            * ys.len()
+            * match units {
+                Units::Voxels => zs.len(),
+                Units::Columns => 1,
+            };
+        for first in (0..count).step_by(per_item) {
+            items.push([t as u32, first as u32, (first + per_item).min(count) as u32, 0]);
+        }
+    }
+    items
+}
+
+/// Runs a triangle pass of `entry` over every chunk for one slab; `output` is bound at 2.
+pub(super) fn triangle_pass(
+    gpu: &Gpu,
+    (source, entry): (&'static str, &'static str),
+    chunks: &[Chunk],
+    grid: &Grid,
+    slab: &Range<usize>,
+    units: Units,
+    output: &wgpu::Buffer,
+) {
+    for chunk in chunks {
+        let items = work_items(chunk, grid, slab, units);
+        let p = gpu.upload(&params(grid, slab, items.len(), 0, 0));
+        let item_buffer = gpu.upload(&items);
+        let groups = (items.len() as u32).div_ceil(WORKGROUP);
+        gpu.dispatch(
+            source,
+            entry,
+            &[(0, &p), (1, &chunk.buffer), (2, output), (4, &item_buffer)],
+            groups,
+        );
+    }
+}
+
+/// Runs a one-bit-per-voxel stage (`surface` or `parity`) over every slab.
+pub(super) fn bit_stage(
+    gpu: &Gpu,
+    stage: (&'static str, &'static str),
+    units: Units,
+    mesh: &Mesh,
+    grid: &Grid,
+) -> Result<Vec<bool>, GpuError> {
+    gpu.run(|gpu| {
+        let [_, ny, nz] = grid.dims;
+        let layer = ny * nz;
+        let chunks = triangle_chunks(gpu, mesh, grid)?;
+        let mut voxels = vec![false; grid.len()];
+        for slab in slabs(gpu, grid, (layer as u64).div_ceil(8))? {
+            let count = slab.len() * layer;
+            let bits = gpu.zeroed((count as u64).div_ceil(32) * 4);
+            triangle_pass(gpu, stage, &chunks, grid, &slab, units, &bits);
+            let words: Vec<u32> = gpu.read(&bits)?;
+            let out = &mut voxels[slab.start * layer..slab.end * layer];
+            for (i, v) in out.iter_mut().enumerate() {
+                *v = words[i / 32] >> (i % 32) & 1 == 1;
+            }
+        }
+        Ok(voxels)
+    })
+}

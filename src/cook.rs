@@ -118,31 +118,16 @@ pub fn cook_with_progress(
         panels.extend(run.stage("patches", || find_patches(&mesh, &topology, cook)));
     }
     // Selection merges as it goes; its last merge is the solid part of the occluder.
-    let selection = run.stage("select+merge", || {
-        select::select(
-            &mesh,
-            &box_candidates,
-            &panels,
-            cook.max_triangles,
-            cook.min_silhouette_gain,
-        )
-    });
+    let selection = run.stage("select+merge", || select_pieces(&mesh, &box_candidates, &panels, cook));
     let occluder = Occluder {
         solid: selection.solid,
         panels: selection.panels.iter().map(|&i| panels[i]).collect(),
     };
     let inner_count = inner.iter().filter(|&&v| v).count();
-    let exposed = [
-        exposed_voxels,
-        voxel_boxes.len() - box_candidates.len(),
-        quad_count - kept_quads,
-    ];
-    run.note_outcome(
-        exposed,
-        inner_count == 0 && uses(Shape::Boxes),
-        cook.resolution,
-        &occluder,
-    );
+    let exposed_boxes = voxel_boxes.len() - box_candidates.len();
+    let exposed = [exposed_voxels, exposed_boxes, quad_count - kept_quads];
+    let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
+    run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
     let quality = match with_eval {
         false => None,
         true => Some(run.evaluate(&mesh, &topology, &occluder, settings)?),
@@ -150,12 +135,7 @@ pub fn cook_with_progress(
     let report = Report {
         voxels: VoxelReport::new(&surface, &inside, inner_count, exposed_voxels),
         boxes: BoxReport::new(&voxel_boxes, &box_candidates, &selection.boxes, inner_count),
-        panels: PanelReport {
-            quad_candidates: quad_count,
-            patch_candidates: panels.len() - kept_quads,
-            exposed: exposed[2],
-            kept_panels: occluder.panels.clone(),
-        },
+        panels: PanelReport::new(quad_count, kept_quads, panels.len(), &occluder),
         occluder: OccluderReport::new(&occluder, selection.boxes.len(), selection.gains),
         input: InputReport {
             triangles: mesh.triangles.len(),
@@ -280,6 +260,11 @@ fn find_patches(mesh: &Mesh, topology: &Topology, cook: &CookSettings) -> Vec<Pa
         size / cook.quad_grid as f64,
         cook.min_patch_area * size * size,
     )
+}
+
+/// The pieces that add the most silhouette within the triangle budget, the boxes merged.
+fn select_pieces(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], cook: &CookSettings) -> select::Selection {
+    select::select(mesh, boxes, panels, cook.max_triangles, cook.min_silhouette_gain)
 }
 
 /// A cook under way: the stages' times and progress, the device they may use, and the notes

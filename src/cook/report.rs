@@ -143,6 +143,19 @@ pub struct PanelReport {
     pub kept_panels: Vec<Panel>,
 }
 
+impl PanelReport {
+    /// `found` quads, of which `unexposed` did not show through an opening, then patches up to
+    /// `candidates` panels in all.
+    pub(super) fn new(found: usize, unexposed: usize, candidates: usize, occluder: &Occluder) -> PanelReport {
+        PanelReport {
+            quad_candidates: found,
+            patch_candidates: candidates - unexposed,
+            exposed: found - unexposed,
+            kept_panels: occluder.panels.clone(),
+        }
+    }
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct OccluderReport {
     pub triangles: usize,

@@ -50,73 +50,24 @@ pub fn cull_eval(
     pixels: usize,
     gpu: Option<&Gpu>,
 ) -> Result<CullReport, String> {
-    let mut meshes: HashMap<&MeshRef, Mesh> = HashMap::new();
-    for (m, _) in &level.instances {
-        if meshes.contains_key(m) {
-            continue;
-        }
-        let mesh = match m {
-            MeshRef::File(path) => load_file(path).map_err(|e| format!("{}: {e}", path.display()))?.0,
-            MeshRef::Part(p) => level.parts[*p].1.clone(),
-            MeshRef::Key(k) => return Err(format!("mesh {k} is only a key: cull-eval needs the real meshes")),
-        };
-        meshes.insert(m, mesh);
-    }
+    let meshes = load_meshes(level)?;
     let boxes: Vec<(DVec3, DVec3)> = level
         .instances
         .iter()
-        .map(|(m, matrix)| {
-            point_bounds(
-                meshes[m]
-                    .positions
-                    .iter()
-                    .map(|p| matrix.transform_point3(p.as_dvec3())),
-            )
-        })
+        .map(|(m, matrix)| point_bounds(placed_positions(&meshes[m], matrix)))
         .collect();
     let (lo, hi) = point_bounds(boxes.iter().flat_map(|&(l, h)| [l, h]));
-    let size = hi - lo;
-    let tolerance = 1e-4 * size.length();
-    let mut rng = fastrand::Rng::with_seed(0xc0ffee);
-    let poses: Vec<(DVec3, DVec3)> = (0..cameras)
-        .map(|_| {
-            let eye = DVec3::new(
-                lo.x + size.x * (0.1 + 0.8 * rng.f64()),
-                lo.y + size.y * (0.05 + 0.45 * rng.f64()),
-                lo.z + size.z * (0.1 + 0.8 * rng.f64()),
-            );
-            let yaw = rng.f64() * std::f64::consts::TAU;
-            (eye, DVec3::new(yaw.cos(), 0.0, yaw.sin()))
-        })
-        .collect();
+    let tolerance = 1e-4 * (hi - lo).length();
+    let poses = camera_poses(lo, hi, cameras);
     // Views look along -dir. Their near plane sits far closer than the depth tolerance, so
     // that a wall next to the eye is not clipped away.
     let near = tolerance * 1e-3;
     let truth_view = |(eye, forward): (DVec3, DVec3)| View::perspective(eye, -forward, TRUTH_PIXELS, near);
     // The GPU renders one camera after another; the CPU renders them in parallel below.
-    let gpu_truth: Option<Vec<Vec<bool>>> = match gpu {
+    let truth_views: Vec<View> = poses.iter().map(|&pose| truth_view(pose)).collect();
+    let gpu_truth = match gpu {
         Some(gpu) => {
-            let placed: Vec<(Vec<DVec3>, &[[u32; 3]])> = level
-                .instances
-                .iter()
-                .map(|(m, matrix)| {
-                    let mesh = &meshes[m];
-                    let positions = mesh.positions.iter().map(|p| matrix.transform_point3(p.as_dvec3()));
-                    (positions.collect(), &mesh.triangles[..])
-                })
-                .collect();
-            let scene = InstanceScene::new(gpu, &placed, TRUTH_PIXELS as u32);
-            let images: Result<Vec<Vec<bool>>, _> = poses
-                .iter()
-                .map(|&pose| {
-                    let view = truth_view(pose);
-                    let in_view: Vec<usize> = (0..boxes.len())
-                        .filter(|&i| box_on_screen(&view, &boxes[i]).is_some())
-                        .collect();
-                    scene.visible(&view, near, &in_view)
-                })
-                .collect();
-            Some(images.map_err(|e| e.to_string())?)
+            Some(gpu_ground_truth(gpu, level, &meshes, &boxes, &truth_views, near).map_err(|e| e.to_string())?)
         }
         None => None,
     };
@@ -128,7 +79,7 @@ pub fn cull_eval(
             let occluded = occluder_depth(&coarse, occluder);
             let visible = match &gpu_truth {
                 Some(images) => images[c].clone(),
-                None => ground_truth(&truth_view((eye, forward)), level, &meshes, &boxes),
+                None => ground_truth(&truth_views[c], level, &meshes, &boxes),
             };
             let (mut in_view, mut culled, mut wrong) = (0, 0, 0);
             for (i, b) in boxes.iter().enumerate() {
@@ -165,6 +116,73 @@ pub fn cull_eval(
         occluder_triangles: occluder.triangles.len(),
         truth_device: gpu.map_or("cpu".into(), Gpu::name),
     })
+}
+
+/// Every unique mesh the level places, read once.
+fn load_meshes(level: &Level) -> Result<HashMap<&MeshRef, Mesh>, String> {
+    let mut meshes: HashMap<&MeshRef, Mesh> = HashMap::new();
+    for (m, _) in &level.instances {
+        if meshes.contains_key(m) {
+            continue;
+        }
+        let mesh = match m {
+            MeshRef::File(path) => load_file(path).map_err(|e| format!("{}: {e}", path.display()))?.0,
+            MeshRef::Part(p) => level.parts[*p].1.clone(),
+            MeshRef::Key(k) => return Err(format!("mesh {k} is only a key: cull-eval needs the real meshes")),
+        };
+        meshes.insert(m, mesh);
+    }
+    Ok(meshes)
+}
+
+fn placed_positions<'a>(mesh: &'a Mesh, matrix: &'a DMat4) -> impl Iterator<Item = DVec3> + 'a {
+    mesh.positions.iter().map(|p| matrix.transform_point3(p.as_dvec3()))
+}
+
+/// Seeded random cameras (eye, horizontal forward direction) within the level's bounds.
+fn camera_poses(lo: DVec3, hi: DVec3, cameras: usize) -> Vec<(DVec3, DVec3)> {
+    let size = hi - lo;
+    let mut rng = fastrand::Rng::with_seed(0xc0ffee);
+    (0..cameras)
+        .map(|_| {
+            let eye = DVec3::new(
+                lo.x + size.x * (0.1 + 0.8 * rng.f64()),
+                lo.y + size.y * (0.05 + 0.45 * rng.f64()),
+                lo.z + size.z * (0.1 + 0.8 * rng.f64()),
+            );
+            let yaw = rng.f64() * std::f64::consts::TAU;
+            (eye, DVec3::new(yaw.cos(), 0.0, yaw.sin()))
+        })
+        .collect()
+}
+
+/// The ground truth of every view on the GPU: which instances show at least one pixel.
+fn gpu_ground_truth(
+    gpu: &Gpu,
+    level: &Level,
+    meshes: &HashMap<&MeshRef, Mesh>,
+    boxes: &[(DVec3, DVec3)],
+    views: &[View],
+    near: f64,
+) -> Result<Vec<Vec<bool>>, crate::gpu::GpuError> {
+    let placed: Vec<(Vec<DVec3>, &[[u32; 3]])> = level
+        .instances
+        .iter()
+        .map(|(m, matrix)| {
+            let mesh = &meshes[m];
+            (placed_positions(mesh, matrix).collect(), &mesh.triangles[..])
+        })
+        .collect();
+    let scene = InstanceScene::new(gpu, &placed, TRUTH_PIXELS as u32);
+    views
+        .iter()
+        .map(|view| {
+            let in_view: Vec<usize> = (0..boxes.len())
+                .filter(|&i| box_on_screen(view, &boxes[i]).is_some())
+                .collect();
+            scene.visible(view, near, &in_view)
+        })
+        .collect()
 }
 
 /// The occluders' depth over the pixels they cover whole, each at its farthest: a pixel whose
@@ -243,11 +261,7 @@ fn ground_truth(view: &View, level: &Level, meshes: &HashMap<&MeshRef, Mesh>, bo
         }
         let (m, matrix): &(MeshRef, DMat4) = &level.instances[*i];
         let mesh = &meshes[m];
-        let placed: Vec<DVec3> = mesh
-            .positions
-            .iter()
-            .map(|p| matrix.transform_point3(p.as_dvec3()))
-            .collect();
+        let placed: Vec<DVec3> = placed_positions(mesh, matrix).collect();
         for t in &mesh.triangles {
             let tri = t.map(|v| placed[v as usize]);
             rasterize(view, &tri, |p, d| {

@@ -271,14 +271,81 @@ pub async fn bake(
 ) -> Result<Baked, LevelError> {
     let mut timings = crate::cook::Timings::default();
     let started = Instant::now();
-    let cache = |e: StoreError| LevelError::Cache(e.to_string());
     let mut unique: Vec<&MeshRef> = level.instances.iter().map(|(m, _)| m).collect();
     unique.sort_by_key(|m| m.label());
     unique.dedup();
-    // Keys first: files are read and keyed in parallel.
-    // (mesh, key, what to cook it from when it is not cached)
-    type Keyed = (MeshRef, String, Option<(Input, Mesh, crate::mesh::IngestStats)>);
-    let keyed: Vec<Result<Keyed, LevelError>> = unique
+    let keyed = key_meshes(level, &unique, settings)?;
+    timings
+        .0
+        .push(("read+key".into(), started.elapsed().as_secs_f64() * 1e3));
+
+    let lookup = Instant::now();
+    let (mut occluders, misses) = look_up(level, keyed, store).await?;
+    let cache_hits = occluders.len();
+    timings.0.push(("cache".into(), lookup.elapsed().as_secs_f64() * 1e3));
+    progress(cache_hits, unique.len());
+
+    let cooking = Instant::now();
+    let done = std::sync::atomic::AtomicUsize::new(cache_hits);
+    let cooked: Vec<_> = misses
+        .into_par_iter()
+        .map(|(m, key, (input, mesh, stats))| {
+            let cooked = cook(mesh, stats, 0.0, settings, false);
+            let finished = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+            progress(finished, unique.len());
+            (m, key, input, cooked)
+        })
+        .collect();
+    let mut stored = Vec::with_capacity(cooked.len());
+    for (m, key, input, cooked) in cooked {
+        let (occluder, bytes) = file_result(store, &key, &input, &cooked?).await?;
+        stored.push((key, bytes));
+        occluders.insert(m, occluder);
+    }
+    timings.0.push(("cook".into(), cooking.elapsed().as_secs_f64() * 1e3));
+
+    let placing = Instant::now();
+    let (glb, batches, hidden_triangles_removed) = place_and_batch(level, &occluders, settings);
+    timings
+        .0
+        .push(("place+batch".into(), placing.elapsed().as_secs_f64() * 1e3));
+    let report = LevelReport {
+        name: level.name.clone(),
+        instances: level.instances.len(),
+        unique_meshes: unique.len(),
+        cache_hits,
+        batches: batches.len(),
+        triangles_before: level.instances.iter().map(|(m, _)| occluders[m].source_triangles).sum(),
+        triangles_after: batches.iter().map(|b| b.triangles).sum(),
+        hidden_triangles_removed,
+        draw_calls_before: level
+            .instances
+            .iter()
+            .map(|(m, _)| occluders[m].source_primitives)
+            .sum(),
+        draw_calls_after: batches.len(),
+        timings_ms: timings,
+    };
+    Ok(Baked {
+        glb,
+        stored,
+        batches,
+        report,
+    })
+}
+
+/// What a mesh is cooked from when its result is not cached: its input as stored, the mesh and
+/// its ingest figures.
+type Source = (Input, Mesh, crate::mesh::IngestStats);
+
+/// Each unique mesh with its key, and its source where the level holds one (files and parts
+/// are read and keyed in parallel).
+fn key_meshes(
+    level: &Level,
+    unique: &[&MeshRef],
+    settings: &Settings,
+) -> Result<Vec<(MeshRef, String, Option<Source>)>, LevelError> {
+    unique
         .par_iter()
         .map(|m| match m {
             MeshRef::Key(k) => Ok(((*m).clone(), k.clone(), None)),
@@ -311,73 +378,77 @@ pub async fn bake(
                 Ok(((*m).clone(), key, Some((input, mesh, stats))))
             }
         })
-        .collect();
-    let keyed = keyed.into_iter().collect::<Result<Vec<_>, _>>()?;
-    timings
-        .0
-        .push(("read+key".into(), started.elapsed().as_secs_f64() * 1e3));
+        .collect()
+}
 
-    let lookup = Instant::now();
-    let mut occluders: HashMap<MeshRef, Occluder> = HashMap::new();
+fn cache_error(e: StoreError) -> LevelError {
+    LevelError::Cache(e.to_string())
+}
+
+/// The occluders `store` has already, and the meshes to cook: from the level's own source, or
+/// from the upload kept under a key that has no result yet.
+async fn look_up(
+    level: &Level,
+    keyed: Vec<(MeshRef, String, Option<Source>)>,
+    store: &dyn Store,
+) -> Result<(HashMap<MeshRef, Occluder>, Vec<(MeshRef, String, Source)>), LevelError> {
+    let mut occluders = HashMap::new();
     let mut misses = Vec::new();
     for (m, key, source) in keyed {
-        match store.result_glb(&key).await.map_err(cache)? {
-            Some(bytes) => {
-                let report = store.result_report(&key).await.map_err(cache)?;
-                occluders.insert(m, occluder_from_glb(&key, &bytes, report.as_deref())?);
-            }
-            None => match source {
-                Some(source) => misses.push((m, key, source)),
-                // A key with no result yet: cooked from the upload kept under it.
-                None => match store.input(&key).await.map_err(cache)? {
-                    Some(input) => {
-                        let (mesh, stats) = input.load().map_err(|e| LevelError::BadMesh {
-                            mesh: key.clone(),
-                            message: e.to_string(),
-                        })?;
-                        misses.push((m, key, (input, mesh, stats)));
-                    }
-                    None => {
-                        let index = level.instances.iter().position(|(r, _)| *r == m).unwrap_or(0);
-                        return Err(LevelError::MissingMesh { index, mesh: key });
-                    }
-                },
-            },
+        if let Some(bytes) = store.result_glb(&key).await.map_err(cache_error)? {
+            let report = store.result_report(&key).await.map_err(cache_error)?;
+            occluders.insert(m, occluder_from_glb(&key, &bytes, report.as_deref())?);
+            continue;
         }
-    }
-    let cache_hits = occluders.len();
-    timings.0.push(("cache".into(), lookup.elapsed().as_secs_f64() * 1e3));
-    progress(cache_hits, unique.len());
-
-    let cooking = Instant::now();
-    let done = std::sync::atomic::AtomicUsize::new(cache_hits);
-    let cooked: Vec<_> = misses
-        .into_par_iter()
-        .map(|(m, key, (input, mesh, stats))| {
-            let cooked = cook(mesh, stats, 0.0, settings, false);
-            let finished = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-            progress(finished, unique.len());
-            (m, key, input, cooked)
-        })
-        .collect();
-    let mut stored = Vec::with_capacity(cooked.len());
-    for (m, key, input, cooked) in cooked {
-        let cooked = cooked?;
-        let glb = cooked.glb();
-        let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
-        store.put_input(&key, &input).await.map_err(cache)?;
-        let meta = ResultMeta {
-            job: "level".into(),
-            bytes: (glb.len() + report.len()) as u64,
-            created_ms: now_ms(),
+        let source = match source {
+            Some(source) => source,
+            None => match store.input(&key).await.map_err(cache_error)? {
+                Some(input) => {
+                    let (mesh, stats) = input.load().map_err(|e| LevelError::BadMesh {
+                        mesh: key.clone(),
+                        message: e.to_string(),
+                    })?;
+                    (input, mesh, stats)
+                }
+                None => {
+                    let index = level.instances.iter().position(|(r, _)| *r == m).unwrap_or(0);
+                    return Err(LevelError::MissingMesh { index, mesh: key });
+                }
+            },
         };
-        store.put_result(&key, &glb, &report, &meta).await.map_err(cache)?;
-        stored.push((key.clone(), meta.bytes));
-        occluders.insert(m, occluder_from_glb(&key, &glb, Some(&report))?);
+        misses.push((m, key, source));
     }
-    timings.0.push(("cook".into(), cooking.elapsed().as_secs_f64() * 1e3));
+    Ok((occluders, misses))
+}
 
-    let placing = Instant::now();
+/// Files a cooked mesh's input and result under `key`, as the service would; returns its
+/// occluder and the bytes stored.
+async fn file_result(
+    store: &dyn Store,
+    key: &str,
+    input: &Input,
+    cooked: &crate::cook::Cooked,
+) -> Result<(Occluder, u64), LevelError> {
+    let glb = cooked.glb();
+    let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
+    store.put_input(key, input).await.map_err(cache_error)?;
+    let meta = ResultMeta {
+        job: "level".into(),
+        bytes: (glb.len() + report.len()) as u64,
+        created_ms: now_ms(),
+    };
+    store.put_result(key, &glb, &report, &meta).await.map_err(cache_error)?;
+    Ok((occluder_from_glb(key, &glb, Some(&report))?, meta.bytes))
+}
+
+/// Places every instance's occluder, clusters them into batches and writes the level's GLB, a
+/// node per batch. Returns the GLB, the batches and the triangles dropped between touching
+/// occluders.
+fn place_and_batch(
+    level: &Level,
+    occluders: &HashMap<MeshRef, Occluder>,
+    settings: &Settings,
+) -> (Vec<u8>, Vec<BatchInfo>, usize) {
     let placed: Vec<Placed> = level
         .instances
         .iter()
@@ -447,33 +518,7 @@ pub async fn bake(
         });
         batches.push(info);
     }
-    let glb = glb::write_scene(&nodes);
-    timings
-        .0
-        .push(("place+batch".into(), placing.elapsed().as_secs_f64() * 1e3));
-    let report = LevelReport {
-        name: level.name.clone(),
-        instances: level.instances.len(),
-        unique_meshes: unique.len(),
-        cache_hits,
-        batches: batches.len(),
-        triangles_before: level.instances.iter().map(|(m, _)| occluders[m].source_triangles).sum(),
-        triangles_after: batches.iter().map(|b| b.triangles).sum(),
-        hidden_triangles_removed,
-        draw_calls_before: level
-            .instances
-            .iter()
-            .map(|(m, _)| occluders[m].source_primitives)
-            .sum(),
-        draw_calls_after: batches.len(),
-        timings_ms: timings,
-    };
-    Ok(Baked {
-        glb,
-        stored,
-        batches,
-        report,
-    })
+    (glb::write_scene(&nodes), batches, hidden_triangles_removed)
 }
 
 /// A cached occluder's parts, with the source's size from its report.

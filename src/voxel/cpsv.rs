@@ -308,13 +308,24 @@ pub fn classify(
             }
         }
     }
+    Ok(solid_and_stats(grid, surface, &cells, &status, seeds))
+}
+
+/// The surface voxels and those of the cells decided inside, and what the classification found.
+fn solid_and_stats(
+    grid: &Grid,
+    surface: &[bool],
+    cells: &[Cell],
+    status: &[Status],
+    seeds: usize,
+) -> (Vec<bool>, CpsvStats) {
     let mut solid = surface.to_vec();
     let mut stats = CpsvStats {
         cells: cells.len(),
         seeds,
         ..Default::default()
     };
-    for (cell, s) in cells.iter().zip(&status) {
+    for (cell, s) in cells.iter().zip(status) {
         match s {
             Status::Inside => {
                 for x in cell.lo[0]..cell.hi[0] {
@@ -332,7 +343,7 @@ pub fn classify(
             Status::Outside => {}
         }
     }
-    Ok((solid, stats))
+    (solid, stats)
 }
 
 /// The octree's empty cells: cubes of power-of-two size, split while they hold a surface voxel

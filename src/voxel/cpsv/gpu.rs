@@ -91,10 +91,52 @@ impl<'a> CubeMaps<'a> {
         unknown: &[bool],
         verdict: impl Fn(&[u32]) -> u32,
     ) -> Result<(Vec<u32>, Vec<[u32; 2]>), GpuError> {
+        let faces = self.render_faces(gpu, seeds);
+        let mut params = Params {
+            pixels: self.pixels,
+            row_floats: faces.row_bytes / 4,
+            faces: seeds.len() as u32 * 6,
+            cells: self.corners.len() as u32,
+            voters: 0,
+        };
+        let backs = gpu.zeroed(u64::from(params.faces) * 4);
+        let groups = (self.pixels * self.pixels * params.faces).div_ceil(64);
+        let count_params = gpu.upload(&[params]);
+        gpu.dispatch(
+            SHADER,
+            "count_backs",
+            &[(1, &count_params), (2, &faces.images), (3, &backs)],
+            groups,
+        );
+        let backs: Vec<u32> = gpu.read(&backs)?;
+        let verdicts: Vec<u32> = backs.chunks(6).map(&verdict).collect();
+        let origin = self.buffers.origin;
+        let voters: Vec<Voter> = seeds
+            .iter()
+            .zip(&verdicts)
+            .enumerate()
+            .filter(|(_, (_, v))| **v != 0)
+            .map(|(s, (seed, &v))| Voter {
+                eye: (seed.eye - origin).as_vec3().to_array(),
+                near: seed.near as f32,
+                first_face: s as u32 * 6,
+                verdict: v,
+                pad: [0; 2],
+            })
+            .collect();
+        if voters.is_empty() || self.corners.is_empty() {
+            return Ok((verdicts, vec![[0; 2]; self.corners.len()]));
+        }
+        params.voters = voters.len() as u32;
+        let votes = self.cast_votes(gpu, params, &faces, &voters, unknown)?;
+        Ok((verdicts, votes))
+    }
+
+    /// Renders the six faces of each seed's cube map, one render pass each, into one buffer of
+    /// images.
+    fn render_faces(&self, gpu: &Gpu, seeds: &[Seed]) -> Faces {
         let (buffers, pipeline, pixels) = (&self.buffers, &self.pipeline, self.pixels);
         let origin = buffers.origin;
-        let local = |p: DVec3| (p - origin).as_vec3().to_array();
-        let cells = &self.corners;
         let faces = seeds.len() as u32 * 6;
         let row = (pixels * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let image_bytes = u64::from(row) * u64::from(pixels);
@@ -158,43 +200,23 @@ impl<'a> CubeMaps<'a> {
             }
         }
         gpu.queue.submit([encoder.finish()]);
-
-        let mut params = Params {
-            pixels,
-            row_floats: row / 4,
-            faces,
-            cells: cells.len() as u32,
-            voters: 0,
-        };
-        let backs = gpu.zeroed(u64::from(faces) * 4);
-        let groups = (pixels * pixels * faces).div_ceil(64);
-        let count_params = gpu.upload(&[params]);
-        gpu.dispatch(
-            SHADER,
-            "count_backs",
-            &[(1, &count_params), (2, &images), (3, &backs)],
-            groups,
-        );
-        let backs: Vec<u32> = gpu.read(&backs)?;
-        let verdicts: Vec<u32> = backs.chunks(6).map(&verdict).collect();
-
-        let voters: Vec<Voter> = seeds
-            .iter()
-            .zip(&verdicts)
-            .enumerate()
-            .filter(|(_, (_, v))| **v != 0)
-            .map(|(s, (seed, &v))| Voter {
-                eye: local(seed.eye),
-                near: seed.near as f32,
-                first_face: s as u32 * 6,
-                verdict: v,
-                pad: [0; 2],
-            })
-            .collect();
-        if voters.is_empty() || cells.is_empty() {
-            return Ok((verdicts, vec![[0; 2]; cells.len()]));
+        Faces {
+            images,
+            clips,
+            row_bytes: row,
         }
-        params.voters = voters.len() as u32;
+    }
+
+    /// The (inside, outside) votes of `voters` in each cell still `unknown`.
+    fn cast_votes(
+        &self,
+        gpu: &Gpu,
+        params: Params,
+        faces: &Faces,
+        voters: &[Voter],
+        unknown: &[bool],
+    ) -> Result<Vec<[u32; 2]>, GpuError> {
+        let cells = &self.corners;
         let corners: Vec<[f32; 4]> = cells
             .iter()
             .zip(unknown)
@@ -206,14 +228,15 @@ impl<'a> CubeMaps<'a> {
             })
             .collect();
         let vote_params = gpu.upload(&[params]);
-        let (voter_buffer, clip_buffer, cell_buffer) = (gpu.upload(&voters), gpu.upload(&clips), gpu.upload(&corners));
+        let (voter_buffer, clip_buffer, cell_buffer) =
+            (gpu.upload(voters), gpu.upload(&faces.clips), gpu.upload(&corners));
         let votes = gpu.zeroed(cells.len() as u64 * 8);
         gpu.dispatch(
             SHADER,
             "vote",
             &[
                 (1, &vote_params),
-                (2, &images),
+                (2, &faces.images),
                 (4, &voter_buffer),
                 (5, &clip_buffer),
                 (6, &cell_buffer),
@@ -221,7 +244,14 @@ impl<'a> CubeMaps<'a> {
             ],
             (cells.len() as u32).div_ceil(64),
         );
-        let votes: Vec<[u32; 2]> = gpu.read(&votes)?;
-        Ok((verdicts, votes))
+        gpu.read(&votes)
     }
+}
+
+/// A batch's cube-map faces on the device: their images (rows of `row_bytes`) and the clip
+/// matrices that drew them.
+struct Faces {
+    images: wgpu::Buffer,
+    clips: Vec<[f32; 16]>,
+    row_bytes: u32,
 }

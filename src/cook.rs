@@ -11,13 +11,13 @@ pub use report::{BoxReport, Cooked, InputReport, OccluderReport, PanelReport, Re
 
 use crate::config::{CookSettings, Settings};
 use crate::eval::{Quality, ViewSet, evaluate};
+use crate::geom::raster;
 use crate::gpu::{self, Gpu, GpuError};
 use crate::key::{PIPELINE_VERSION, cache_key};
 use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_components};
 use crate::occluder::boxes::{self, VoxelBox};
 use crate::occluder::exposure::OpenViews;
 use crate::occluder::{Occluder, Panel, Shape, WorldBox, patches, quads, refine, select};
-use crate::raster;
 use crate::voxel::{self, Grid, InsideMethod, cpsv::CpsvStats, winding::WindingField};
 use glam::DVec3;
 use rayon::prelude::*;

@@ -1,21 +1,23 @@
 //! occluder-cook: conservative occluders for game meshes.
 //!
 //! The pipeline, one module per stage: [`mesh`] (ingest, weld, export), [`voxel`] (surface and
-//! inside/outside), [`occluder`] (boxes, refinement, selection, merge), [`eval`] (quality
-//! figures), tied together by [`cook`]; [`gpu`] runs the voxel stages' shaders through wgpu; [`service`] runs it behind an HTTP job queue with a
-//! content-addressed cache.
+//! inside/outside), [`occluder`] (boxes, refinement, quads, patches, exposure, selection, merge),
+//! [`eval`] (quality figures), tied together as a list of stages by [`cook`]. Each stage with a
+//! GPU twin keeps its host code in a `gpu` module beside it; [`gpu`] is the device alone, and
+//! [`geom`] holds the cameras and the rasterizer that several stages share. [`store`] keeps jobs,
+//! inputs and results (sled or NATS); [`service`] runs the pipeline behind an HTTP job queue on
+//! it, and [`level`] bakes whole levels through the same store.
 
 pub mod bench;
-pub mod camera;
 pub mod config;
 pub mod cook;
 pub mod eval;
+pub mod geom;
 pub mod gpu;
 pub mod key;
 pub mod level;
 pub mod mesh;
 pub mod occluder;
-pub mod raster;
 pub mod service;
 pub mod store;
 pub mod voxel;

@@ -5,11 +5,11 @@
 mod common;
 use common::{concat, cuboid, torus};
 use glam::Vec3;
-use occluder_cook::camera::View;
+use occluder_cook::geom::camera::View;
+use occluder_cook::geom::raster::depth_image;
 use occluder_cook::gpu::{self, Gpu, GpuError};
 use occluder_cook::mesh::{Mesh, load_file, topology::orient_closed_components};
 use occluder_cook::occluder::exposure::OpenViews;
-use occluder_cook::raster::depth_image;
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
 use std::sync::Arc;
 
@@ -261,11 +261,11 @@ fn gpu_depth_images_match_the_cpu_rasterizer() {
     }
     for (name, mesh) in meshes {
         let (center, radius) = mesh.bounding_sphere();
-        let views: Vec<View> = occluder_cook::camera::fibonacci_sphere(12)
+        let views: Vec<View> = occluder_cook::geom::camera::fibonacci_sphere(12)
             .into_iter()
             .map(|d| View::new(d, center, radius, 256))
             .collect();
-        let images = occluder_cook::raster::gpu::depth_images(&gpu, &mesh, &views).expect("GPU depth images");
+        let images = occluder_cook::geom::raster::gpu::depth_images(&gpu, &mesh, &views).expect("GPU depth images");
         let tolerance = 2e-4 * radius as f32;
         let (mut covered, mut differ) = (0, 0);
         for (view, image) in views.iter().zip(&images) {
@@ -281,7 +281,7 @@ fn gpu_depth_images_match_the_cpu_rasterizer() {
         );
         // A mesh or image larger than one binding is drawn by the twin instead.
         let tiny = gpu.with_max_binding(16);
-        let fallback = occluder_cook::raster::depth_images(&views[..2], &mesh, Some(&tiny)).expect("CPU images");
+        let fallback = occluder_cook::geom::raster::depth_images(&views[..2], &mesh, Some(&tiny)).expect("CPU images");
         assert_eq!(
             fallback,
             views[..2].iter().map(|v| depth_image(v, &mesh)).collect::<Vec<_>>()

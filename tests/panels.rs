@@ -4,11 +4,11 @@
 mod common;
 use common::{concat, cook_evaluated, cuboid};
 use glam::{DVec3, Vec3};
-use occluder_cook::camera::View;
 use occluder_cook::cook::Cooked;
+use occluder_cook::geom::camera::View;
+use occluder_cook::geom::raster::coverage_mask;
 use occluder_cook::mesh::Mesh;
 use occluder_cook::occluder::{Panel, Shape};
-use occluder_cook::raster::coverage_mask;
 
 fn of_shape(cooked: &Cooked, shape: Shape) -> Vec<Panel> {
     cooked

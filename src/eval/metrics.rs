@@ -1,10 +1,10 @@
 //! Coverage, false pixels and outside samples, as DESIGN.md defines them.
 
 use super::proximity::SurfaceIndex;
-use crate::camera::{View, fibonacci_sphere};
+use crate::geom::camera::{View, fibonacci_sphere};
+use crate::geom::raster::depth_images;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
-use crate::raster::depth_images;
 use crate::voxel::winding::WindingField;
 use glam::DVec3;
 use rayon::prelude::*;

@@ -12,10 +12,10 @@
 pub mod gpu;
 
 use super::{Level, MeshRef};
-use crate::camera::View;
+use crate::geom::camera::View;
+use crate::geom::raster::{rasterize, rasterize_inner};
 use crate::gpu::Gpu;
 use crate::mesh::{Mesh, load_file, point_bounds};
-use crate::raster::{rasterize, rasterize_inner};
 use glam::{DMat4, DVec3};
 use gpu::InstanceScene;
 use rayon::prelude::*;

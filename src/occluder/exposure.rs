@@ -17,10 +17,10 @@
 
 pub mod gpu;
 
-use crate::camera::{View, fibonacci_sphere};
+use crate::geom::camera::{View, fibonacci_sphere};
+use crate::geom::raster::{depth_images, rasterize};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
-use crate::raster::{depth_images, rasterize};
 use crate::voxel::Grid;
 use crate::voxel::winding::WindingField;
 use glam::DVec3;

@@ -3,9 +3,9 @@
 //! the piece that adds the most pixels per triangle of the occluder goes first.
 
 use super::{Panel, WorldBox, merge::merge, panel_mesh};
-use crate::camera::{View, fibonacci_sphere};
+use crate::geom::camera::{View, fibonacci_sphere};
+use crate::geom::raster::coverage_mask;
 use crate::mesh::Mesh;
-use crate::raster::coverage_mask;
 use rayon::prelude::*;
 
 /// Views and pixels of the selection's silhouettes: coarser than `eval`'s, enough to rank boxes.

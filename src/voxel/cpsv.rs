@@ -16,10 +16,10 @@
 pub mod gpu;
 
 use super::Grid;
-use crate::camera::View;
+use crate::geom::camera::View;
+use crate::geom::raster::rasterize;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
-use crate::raster::rasterize;
 use glam::DVec3;
 use gpu::{CubeMaps, Seed};
 use rayon::prelude::*;

@@ -3,7 +3,7 @@
 //! instances with at least one visible pixel. The twin is `ground_truth` in
 //! [`super`].
 
-use crate::camera::View;
+use crate::geom::camera::View;
 use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, depth_attachment, depth_test, render_target};
 use glam::DVec3;
 use std::ops::Range;

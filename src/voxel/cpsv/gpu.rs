@@ -3,7 +3,7 @@
 //! compute pass, and the votes of the decided seeds cast by another. The twin is
 //! [`super`].
 
-use crate::camera::View;
+use crate::geom::camera::View;
 use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, MeshBuffers, depth_attachment, mesh_pipeline, render_target};
 use crate::mesh::Mesh;
 use glam::DVec3;

@@ -4,7 +4,7 @@
 
 pub mod gpu;
 
-use crate::camera::{Lens, View};
+use crate::geom::camera::{Lens, View};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};

@@ -1,12 +1,12 @@
 //! Host code for shaders/raster.wgsl: depth images of a mesh from orthographic views, rasterized
 //! in compute, read back in one go. The twin is [`super::depth_image`].
 
-use crate::camera::View;
+use crate::geom::camera::View;
 use crate::gpu::{Gpu, GpuError, WORKGROUP};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 
-const SHADER: &str = include_str!("../../shaders/raster.wgsl");
+const SHADER: &str = include_str!("../../../shaders/raster.wgsl");
 
 /// Built when the device opens, like the voxel stages' entry points.
 pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "depth_min")];

@@ -29,7 +29,7 @@ const GROUPS_X: u32 = 65535u;
 
 // llvmpipe (and so lavapipe, Mesa 22) silently ends an invocation's loops after 65535
 // iterations in all, so no invocation may loop more: the host splits the work into items that
-// stay well below (src/gpu/voxel.rs).
+// stay well below (src/voxel/gpu.rs).
 
 fn flat_group(group: vec3<u32>) -> u32 {
     return group.x + group.y * GROUPS_X;

@@ -3,6 +3,7 @@
 use super::{Service, SubmitError, Submitted};
 use crate::config::{self, ConfigError};
 use crate::key::cache_key;
+use crate::level::{InstanceSpec, Level, Manifest, MeshRef, is_key, parse_manifest};
 use crate::mesh::{Format, load_bytes};
 use crate::store::Input;
 use crate::store::job::{Job, JobError};
@@ -357,86 +358,12 @@ async fn submit_level(
     Query(params): Query<Vec<(String, String)>>,
     multipart: Result<Multipart, MultipartRejection>,
 ) -> Result<Response, ApiError> {
-    use crate::level::{InstanceSpec, Level, Manifest, MeshRef, is_key, parse_manifest};
-    use rayon::prelude::*;
     let service = &state.service;
     let settings = job_settings(service, &params, &["cook", "level"])?;
-    let mut multipart =
-        multipart.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", e.body_text()))?;
-    let mut manifest = None;
-    let mut parts: HashMap<String, axum::body::Bytes> = HashMap::new();
-    while let Some(field) = multipart.next_field().await.map_err(multipart_error)? {
-        let name = match field.name().unwrap_or_default() {
-            "mesh" => field.file_name().unwrap_or_default().to_string(),
-            other => other.to_string(),
-        };
-        let bytes = field.bytes().await.map_err(multipart_error)?;
-        if name == "manifest" {
-            manifest = Some(bytes);
-        } else if name.is_empty() {
-            return Err(ApiError::new(
-                StatusCode::BAD_REQUEST,
-                "bad_multipart",
-                "a part has no name",
-            ));
-        } else if parts.insert(name.clone(), bytes).is_some() {
-            return Err(ApiError::new(
-                StatusCode::BAD_REQUEST,
-                "bad_multipart",
-                format!("part `{name}` is sent twice"),
-            ));
-        }
-    }
-    let manifest =
-        manifest.ok_or_else(|| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", "no `manifest` part"))?;
-    let manifest = parse_manifest("manifest", &manifest).map_err(|e| bad_level(e.to_string()))?;
-    if let Some(unused) = parts
-        .keys()
-        .find(|name| manifest.instances.iter().all(|i| &i.mesh != *name))
-    {
-        return Err(ApiError::new(
-            StatusCode::BAD_REQUEST,
-            "bad_multipart",
-            format!("part `{unused}` is not used by any instance"),
-        ));
-    }
-    // Uploaded meshes are read and keyed in parallel, off the async threads.
-    let cook = settings.cook.clone();
-    let uploads = tokio::task::spawn_blocking(move || {
-        parts
-            .into_par_iter()
-            .map(|(name, bytes)| {
-                let bad = |why: String| bad_level(format!("part `{name}`: {why}"));
-                let format = Format::from_extension(std::path::Path::new(&name)).map_err(|e| bad(e.to_string()))?;
-                let (mesh, _) = load_bytes(&bytes, format, None).map_err(|e| bad(e.to_string()))?;
-                let input = Input {
-                    format: format.name().into(),
-                    bytes: bytes.to_vec(),
-                };
-                Ok((name, cache_key(&mesh, &cook), input))
-            })
-            .collect::<Result<Vec<_>, ApiError>>()
-    })
-    .await
-    .map_err(|e| bad_level(format!("reading a mesh crashed: {e}")))??;
-    let mut key_of: HashMap<String, String> = HashMap::new();
-    for (name, key, input) in uploads {
-        if service.result_meta(&key).await.map_err(ApiError::storage)?.is_none() {
-            service.store.put_input(&key, &input).await.map_err(ApiError::storage)?;
-        }
-        key_of.insert(name, key);
-    }
-    for spec in &manifest.instances {
-        let mesh = spec.mesh.to_ascii_lowercase();
-        if key_of.contains_key(&spec.mesh) || !is_key(&mesh) || key_of.contains_key(&mesh) {
-            continue;
-        }
-        let known = service.result_meta(&mesh).await.map_err(ApiError::storage)?.is_some()
-            || service.store.input(&mesh).await.map_err(ApiError::storage)?.is_some();
-        if known {
-            key_of.insert(mesh.clone(), mesh);
-        }
-    }
+    let multipart = multipart.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", e.body_text()))?;
+    let (manifest, parts) = read_level_parts(multipart).await?;
+    let uploads = key_uploads(parts, settings.cook.clone()).await?;
+    let key_of = file_level_meshes(service, &manifest, uploads).await?;
     // Every mesh as its key: the level's input, and what its key is made of.
     let resolved = Manifest {
         name: manifest.name,
@@ -477,6 +404,91 @@ async fn submit_level(
         bytes,
     };
     submitted(&key, service.submit(&key, input, settings_json).await)
+}
+
+/// A level upload's manifest and its mesh parts by name; every part must be used by an instance.
+async fn read_level_parts(
+    mut multipart: Multipart,
+) -> Result<(Manifest, HashMap<String, axum::body::Bytes>), ApiError> {
+    let bad_multipart = |message: String| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", message);
+    let mut manifest = None;
+    let mut parts: HashMap<String, axum::body::Bytes> = HashMap::new();
+    while let Some(field) = multipart.next_field().await.map_err(multipart_error)? {
+        let name = match field.name().unwrap_or_default() {
+            "mesh" => field.file_name().unwrap_or_default().to_string(),
+            other => other.to_string(),
+        };
+        let bytes = field.bytes().await.map_err(multipart_error)?;
+        if name == "manifest" {
+            manifest = Some(bytes);
+        } else if name.is_empty() {
+            return Err(bad_multipart("a part has no name".into()));
+        } else if parts.insert(name.clone(), bytes).is_some() {
+            return Err(bad_multipart(format!("part `{name}` is sent twice")));
+        }
+    }
+    let manifest = manifest.ok_or_else(|| bad_multipart("no `manifest` part".into()))?;
+    let manifest = parse_manifest("manifest", &manifest).map_err(|e| bad_level(e.to_string()))?;
+    if let Some(unused) = parts
+        .keys()
+        .find(|name| manifest.instances.iter().all(|i| &i.mesh != *name))
+    {
+        return Err(bad_multipart(format!("part `{unused}` is not used by any instance")));
+    }
+    Ok((manifest, parts))
+}
+
+/// Each uploaded mesh's (name, key, input), read and keyed in parallel, off the async threads.
+async fn key_uploads(
+    parts: HashMap<String, axum::body::Bytes>,
+    cook: crate::config::CookSettings,
+) -> Result<Vec<(String, String, Input)>, ApiError> {
+    use rayon::prelude::*;
+    tokio::task::spawn_blocking(move || {
+        parts
+            .into_par_iter()
+            .map(|(name, bytes)| {
+                let bad = |why: String| bad_level(format!("part `{name}`: {why}"));
+                let format = Format::from_extension(std::path::Path::new(&name)).map_err(|e| bad(e.to_string()))?;
+                let (mesh, _) = load_bytes(&bytes, format, None).map_err(|e| bad(e.to_string()))?;
+                let input = Input {
+                    format: format.name().into(),
+                    bytes: bytes.to_vec(),
+                };
+                Ok((name, cache_key(&mesh, &cook), input))
+            })
+            .collect::<Result<Vec<_>, ApiError>>()
+    })
+    .await
+    .map_err(|e| bad_level(format!("reading a mesh crashed: {e}")))?
+}
+
+/// Files the uploads' inputs where their results are not cached, and maps each mesh name of the
+/// manifest to its key: an upload's, or a key the store knows.
+async fn file_level_meshes(
+    service: &Service,
+    manifest: &Manifest,
+    uploads: Vec<(String, String, Input)>,
+) -> Result<HashMap<String, String>, ApiError> {
+    let mut key_of: HashMap<String, String> = HashMap::new();
+    for (name, key, input) in uploads {
+        if service.result_meta(&key).await.map_err(ApiError::storage)?.is_none() {
+            service.store.put_input(&key, &input).await.map_err(ApiError::storage)?;
+        }
+        key_of.insert(name, key);
+    }
+    for spec in &manifest.instances {
+        let mesh = spec.mesh.to_ascii_lowercase();
+        if key_of.contains_key(&spec.mesh) || !is_key(&mesh) || key_of.contains_key(&mesh) {
+            continue;
+        }
+        let known = service.result_meta(&mesh).await.map_err(ApiError::storage)?.is_some()
+            || service.store.input(&mesh).await.map_err(ApiError::storage)?.is_some();
+        if known {
+            key_of.insert(mesh.clone(), mesh);
+        }
+    }
+    Ok(key_of)
 }
 
 /// 200 with the job that made a cached result, 202 with `Location` for a queued one.

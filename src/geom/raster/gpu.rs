@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 const SHADER: &str = include_str!("../../../shaders/raster.wgsl");
 
-/// Built when the device opens, like the voxel stages' entry points.
+/// Built when a cook opens the device, like the voxel stages' entry points.
 pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "depth_min")];
 
 /// Pixel tests one thread may make over its views: under llvmpipe's 65535 loop iterations.

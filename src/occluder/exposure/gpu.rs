@@ -6,7 +6,7 @@ use crate::gpu::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("../../../shaders/exposure.wgsl");
 
-/// Built when the device opens, like the voxel stages' entry points.
+/// Built when a cook opens the device, like the voxel stages' entry points.
 pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "seen_corners")];
 
 /// The length of the shader's uniform array of view rows: five a view.

@@ -1,0 +1,41 @@
+use super::{SettingsArgs, write};
+use anyhow::{Result, bail};
+use clap::Args;
+use occluder_cook::bench;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Folder of meshes [default: $OCCLUDER_CORPUS or ../shared/meshes].
+    #[arg(long)]
+    corpus: Option<PathBuf>,
+    #[arg(long, default_value = "bench.json")]
+    json: PathBuf,
+    #[command(flatten)]
+    settings: SettingsArgs,
+}
+
+pub fn run(args: BenchArgs) -> Result<()> {
+    let settings = args.settings.load()?;
+    let corpus = args
+        .corpus
+        .or_else(|| std::env::var_os("OCCLUDER_CORPUS").map(PathBuf::from))
+        .unwrap_or_else(|| PathBuf::from("../shared/meshes"));
+    if !corpus.is_dir() {
+        bail!(
+            "corpus folder {} not found: pass --corpus DIR or set OCCLUDER_CORPUS",
+            corpus.display()
+        );
+    }
+    let files = bench::corpus_files(&corpus)?;
+    let rows = bench::run(&files, &settings);
+    if let Some(r) = rows.iter().find_map(|row| row.report.as_ref()) {
+        println!(
+            "device: {} (dev gpu: every GPU stage on it; mix: inside fell back to the CPU)",
+            r.device
+        );
+    }
+    write(&args.json, &serde_json::to_vec_pretty(&rows)?)?;
+    println!("wrote {}", args.json.display());
+    Ok(())
+}

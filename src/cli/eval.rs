@@ -1,0 +1,58 @@
+use super::{SettingsArgs, write};
+use anyhow::{Context, Result};
+use clap::Args;
+use occluder_cook::mesh::{self, topology::orient_closed_components};
+use occluder_cook::{eval, gpu};
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct EvalArgs {
+    original: PathBuf,
+    occluder: PathBuf,
+    /// Also write the figures as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    #[command(flatten)]
+    settings: SettingsArgs,
+}
+
+pub fn run(args: EvalArgs) -> Result<()> {
+    let settings = args.settings.load()?;
+    let (mut original_mesh, _) = mesh::load_file(&args.original)?;
+    let topology = orient_closed_components(&mut original_mesh);
+    let occluder_mesh = match mesh::load_file(&args.occluder) {
+        Ok((m, _)) => m,
+        // An empty occluder is a fair answer for a mesh with no volume.
+        Err(mesh::IngestError::Empty(_)) => mesh::Mesh::default(),
+        Err(e) => return Err(e).with_context(|| format!("occluder {}", args.occluder.display())),
+    };
+    let placement = gpu::for_choice(settings.cook.device)?;
+    let q = eval::evaluate(
+        &original_mesh,
+        &topology.boundary,
+        &occluder_mesh,
+        &settings.eval,
+        placement.gpu.as_deref(),
+    )?;
+    match &placement.gpu {
+        Some(gpu) => println!("rendered on        {}", gpu.name()),
+        None => println!("rendered on        cpu"),
+    }
+    println!("triangles          {}", q.occluder_triangles);
+    println!(
+        "coverage           {:.2}% (min {:.2}%) over {} views",
+        q.coverage * 100.0,
+        q.coverage_min * 100.0,
+        q.views
+    );
+    println!("false pixels       {} (all views)", q.false_pixels);
+    println!(
+        "false pixels       {} ({} non-below views)",
+        q.false_pixels_non_below, q.views_non_below
+    );
+    println!("outside samples    {:.3}% of {}", q.outside_samples * 100.0, q.samples);
+    if let Some(path) = args.json {
+        write(&path, &serde_json::to_vec_pretty(&q)?)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,139 @@
+//! One module per command: its arguments and what it does. `main.rs` parses and dispatches.
+
+pub mod bench;
+pub mod cook;
+pub mod cull_eval;
+pub mod demo;
+pub mod eval;
+pub mod fetch;
+pub mod key;
+pub mod level;
+pub mod serve;
+pub mod submit;
+pub mod worker;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use occluder_cook::config::{self, Settings};
+use occluder_cook::cook::{Cooked, Report};
+use occluder_cook::gpu::DeviceChoice;
+use occluder_cook::voxel::InsideMethod;
+use std::path::{Path, PathBuf};
+
+/// The settings flags every cooking command takes.
+#[derive(Args)]
+pub struct SettingsArgs {
+    /// A TOML file over the built-in config/default.toml.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// cook.resolution: voxels along the longest axis.
+    #[arg(long)]
+    resolution: Option<usize>,
+    /// cook.inside: the inside/outside method.
+    #[arg(long, value_enum)]
+    inside: Option<InsideMethod>,
+    /// cook.device: where the voxel stages run.
+    #[arg(long, value_enum)]
+    device: Option<DeviceChoice>,
+    /// cook.max_triangles: the occluder's triangle budget.
+    #[arg(long)]
+    max_triangles: Option<usize>,
+    /// cook.target_coverage: share of the inner volume the boxes should fill.
+    #[arg(long)]
+    target_coverage: Option<f64>,
+    /// Views of eval: a number of directions around the mesh (eval.views), `outside` for those,
+    /// or `inside` for a cube map from the centre of its bounds (eval.view_set).
+    #[arg(long)]
+    views: Option<String>,
+    /// eval.pixels: image size.
+    #[arg(long)]
+    pixels: Option<usize>,
+    /// Any setting, e.g. --set cook.refine=false (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+}
+
+impl SettingsArgs {
+    pub fn load(&self) -> Result<Settings> {
+        self.load_with(&[])
+    }
+
+    /// The settings with `extra` (key, value) pairs after the flags, as a command's own options
+    /// set them.
+    pub fn load_with(&self, extra: &[(&str, Option<String>)]) -> Result<Settings> {
+        let mut overrides = self.overrides()?;
+        for (key, value) in extra {
+            if let Some(value) = value {
+                overrides.push((key.to_string(), toml::Value::String(value.clone())));
+            }
+        }
+        Ok(config::load(self.config.as_deref(), &overrides)?)
+    }
+
+    /// The flags and `--set`s as `key=value` pairs, in order.
+    pub fn overrides(&self) -> Result<Vec<(String, toml::Value)>> {
+        let mut overrides = Vec::new();
+        let mut flag = |key: &str, value: Option<toml::Value>| {
+            if let Some(v) = value {
+                overrides.push((key.to_string(), v));
+            }
+        };
+        let int = |v: Option<usize>| v.map(|v| toml::Value::Integer(v as i64));
+        flag("cook.resolution", int(self.resolution));
+        let name = |v: &dyn std::fmt::Debug| toml::Value::String(format!("{v:?}").to_lowercase());
+        flag("cook.inside", self.inside.as_ref().map(|m| name(m)));
+        flag("cook.device", self.device.as_ref().map(|d| name(d)));
+        flag("cook.max_triangles", int(self.max_triangles));
+        flag("cook.target_coverage", self.target_coverage.map(toml::Value::Float));
+        match self.views.as_deref().map(|v| (v, v.parse::<usize>())) {
+            Some((_, Ok(n))) => flag("eval.views", int(Some(n))),
+            Some((set, Err(_))) => flag("eval.view_set", Some(toml::Value::String(set.to_string()))),
+            None => {}
+        }
+        flag("eval.pixels", int(self.pixels));
+        for assignment in &self.set {
+            overrides.push(config::parse_assignment(assignment)?);
+        }
+        Ok(overrides)
+    }
+}
+
+/// A path as a setting's value.
+fn path_setting(path: Option<PathBuf>) -> Option<String> {
+    path.map(|p| p.display().to_string())
+}
+
+fn write_occluder(path: &Path, cooked: &Cooked) -> Result<()> {
+    write(path, &cooked.glb())
+}
+
+/// One line on what was cooked, the quality figures when measured, then the notes.
+fn summarize(input: &Path, r: &Report) {
+    print!(
+        "{}: {} triangles in, occluder of {} triangles from {} boxes, {} quads and {} patches in {:.1} ms",
+        input.display(),
+        r.input.triangles,
+        r.occluder.triangles,
+        r.occluder.boxes,
+        r.occluder.quads,
+        r.occluder.patches,
+        r.timings_ms.total()
+    );
+    match &r.quality {
+        Some(q) => println!(
+            "; coverage {:.1}%, false pixels {} ({} in non-below views), outside samples {:.2}%",
+            q.coverage * 100.0,
+            q.false_pixels,
+            q.false_pixels_non_below,
+            q.outside_samples * 100.0
+        ),
+        None => println!(),
+    }
+    for note in &r.notes {
+        println!("note: {note}");
+    }
+}
+
+fn write(path: &Path, bytes: &[u8]) -> Result<()> {
+    std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()))
+}

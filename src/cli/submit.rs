@@ -1,0 +1,46 @@
+use super::SettingsArgs;
+use anyhow::Result;
+use clap::Args;
+use occluder_cook::service::client;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct SubmitArgs {
+    #[arg(required = true)]
+    files: Vec<PathBuf>,
+    /// e.g. http://127.0.0.1:8650
+    #[arg(long)]
+    server: String,
+    /// Wait for the jobs and write each occluder as OUT_DIR/<name>.occluder.glb.
+    #[arg(long)]
+    wait: bool,
+    #[arg(short, long)]
+    out_dir: Option<PathBuf>,
+    #[command(flatten)]
+    settings: SettingsArgs,
+}
+
+pub fn run(args: SubmitArgs) -> Result<()> {
+    let settings = args.settings.load()?;
+    // Only cook settings travel with a job; the server checks them again.
+    let query: Vec<(String, String)> = args
+        .settings
+        .overrides()?
+        .into_iter()
+        .filter(|(k, _)| k.starts_with("cook."))
+        .map(|(k, v)| {
+            let value = match v {
+                toml::Value::String(s) => s,
+                other => other.to_string(),
+            };
+            (k, value)
+        })
+        .collect();
+    let out_dir = client::output_dir(args.out_dir)?;
+    let client = client::Client::new(&args.server);
+    for file in &args.files {
+        let key = client.submit(file, &settings, &query, args.wait, &out_dir)?;
+        println!("{}\t{key}", file.display());
+    }
+    Ok(())
+}

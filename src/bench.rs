@@ -1,7 +1,7 @@
 //! `bench`: every mesh of a corpus through the pipeline, one table row each, plus JSON.
 
 use crate::config::Settings;
-use crate::cook::{Report, cook};
+use crate::cook::{Report, Timings, cook};
 use crate::mesh::{Format, load_file};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -95,6 +95,13 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
         .collect()
 }
 
+/// The stages of the exposure test, all summed into `expo_ms`.
+const EXPOSURE_STAGES: &[&str] = &["exposure-render", "exposure-voxels", "exposure-boxes", "exposure-quads"];
+
+fn stage_sum(timings: &Timings, stages: &[&str]) -> f64 {
+    stages.iter().map(|s| timings.get(s)).sum()
+}
+
 fn print_row(name: &str, r: &Report) {
     let q = r.quality.as_ref().expect("bench always evaluates");
     let t = &r.timings_ms;
@@ -125,13 +132,24 @@ fn print_row(name: &str, r: &Report) {
         t.get("device"),
         t.get("surface"),
         t.get("inside"),
-        t.get("exposure-render"),
-        ["boxes", "refine", "quads", "patches", "select+merge"]
-            .iter()
-            .map(|s| t.get(s))
-            .sum::<f64>(),
+        stage_sum(t, EXPOSURE_STAGES),
+        stage_sum(t, &["boxes", "refine", "quads", "patches", "select+merge"]),
         cook_ms,
         gpu_ms,
         t.get("eval"),
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{EXPOSURE_STAGES, stage_sum};
+    use crate::cook::{STAGES, Timings};
+
+    #[test]
+    fn expo_ms_sums_every_exposure_stage() {
+        let timings = Timings(STAGES.iter().map(|s| (s.to_string(), 1.0)).collect());
+        let exposure = STAGES.iter().filter(|s| s.starts_with("exposure-")).count();
+        assert_eq!(EXPOSURE_STAGES.len(), exposure);
+        assert_eq!(stage_sum(&timings, EXPOSURE_STAGES), exposure as f64);
+    }
 }

@@ -22,6 +22,7 @@ use crate::voxel::{self, Grid, InsideMethod, cpsv::CpsvStats, winding::WindingFi
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 /// The stages of a cook, in order, for progress reports.
@@ -44,6 +45,21 @@ pub const STAGES: [&str; 17] = [
     "select+merge",
     "eval",
 ];
+
+/// The stage this process started last, as an index into [`STAGES`]: what a panic names.
+static LAST_STAGE: AtomicUsize = AtomicUsize::new(usize::MAX);
+
+/// Records that `stage` (one of [`STAGES`]) has started, for [`last_stage`].
+pub fn mark_stage(stage: &str) {
+    if let Some(i) = STAGES.iter().position(|s| *s == stage) {
+        LAST_STAGE.store(i, Ordering::Relaxed);
+    }
+}
+
+/// The stage this process started last, if any.
+pub fn last_stage() -> Option<&'static str> {
+    STAGES.get(LAST_STAGE.load(Ordering::Relaxed)).copied()
+}
 
 /// Told each stage as it starts, with the share of the stages done (0..1).
 pub type Progress<'a> = &'a (dyn Fn(&str, f64) + Sync);
@@ -100,8 +116,9 @@ pub fn cook_with_progress(
     let refined = run.stage("refine", || {
         refine_boxes(&mesh, &grid, &field, &inside.solid, &voxel_boxes, cook.refine)
     });
-    let box_candidates = match &open_views {
-        None => refined.into_iter().map(|(refined, _)| refined).collect(),
+    // Each candidate with the index of the voxel box it came from.
+    let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
+        None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),
         Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined)),
     };
     let quads_found = match uses(Shape::Quads) {
@@ -134,7 +151,13 @@ pub fn cook_with_progress(
     };
     let report = Report {
         voxels: VoxelReport::new(&surface, &inside, inner_count, exposed_voxels),
-        boxes: BoxReport::new(&voxel_boxes, &box_candidates, &selection.boxes, inner_count),
+        boxes: BoxReport::new(
+            &voxel_boxes,
+            &box_candidates,
+            &box_sources,
+            &selection.boxes,
+            inner_count,
+        ),
         panels: PanelReport::new(quad_count, kept_quads, panels.len(), &occluder),
         occluder: OccluderReport::new(&occluder, selection.boxes.len(), selection.gains),
         input: InputReport {
@@ -211,16 +234,19 @@ fn refine_boxes(
 }
 
 /// Near an opening a refined face can reach past the solid; such a box falls back to its
-/// voxels, and is dropped if even those show.
-fn unexposed_boxes(views: &OpenViews, candidates: Vec<(WorldBox, WorldBox)>) -> Vec<WorldBox> {
+/// voxels, and is dropped if even those show. Each box kept comes with its index in
+/// `candidates`.
+fn unexposed_boxes(views: &OpenViews, candidates: Vec<(WorldBox, WorldBox)>) -> (Vec<usize>, Vec<WorldBox>) {
     candidates
         .into_par_iter()
-        .filter_map(|(refined, on_grid)| {
+        .enumerate()
+        .filter_map(|(i, (refined, on_grid))| {
             [refined, on_grid]
                 .into_iter()
                 .find(|b| views.hides(&b.triangles(), true))
+                .map(|b| (i, b))
         })
-        .collect()
+        .unzip()
 }
 
 /// A closed surface's crossings decide exactly whether a quad lies inside. An open one's
@@ -297,6 +323,7 @@ impl<'a> Run<'a> {
     /// Runs `stage`, reporting it as it starts and timing it.
     fn stage<T>(&mut self, stage: &str, work: impl FnOnce() -> T) -> T {
         let done = STAGES.iter().position(|s| *s == stage).unwrap_or(0);
+        mark_stage(stage);
         (self.progress)(stage, done as f64 / STAGES.len() as f64);
         let start = Instant::now();
         let out = work();
@@ -407,3 +434,31 @@ const PIPELINES: [&[(&str, &str)]; 5] = [
     &raster::gpu::ENTRY_POINTS,
     &crate::occluder::exposure::gpu::ENTRY_POINTS,
 ];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stage_the_device_refuses_runs_on_the_cpu_with_a_note_and_is_not_listed() {
+        let gpu = match gpu::device() {
+            Ok(gpu) => gpu,
+            Err(e) => {
+                assert!(std::env::var_os("CI").is_none(), "CI installs lavapipe: {e}");
+                eprintln!("no GPU adapter ({e}); skipping");
+                return;
+            }
+        };
+        let mut run = Run::new(0.0, &|_, _| {});
+        run.gpu = Some(gpu);
+        let refused = run.on_device("exposure-voxels", |gpu| match gpu {
+            Some(_) => Err(GpuError::Unsupported("too large for one binding".into())),
+            None => Ok("cpu"),
+        });
+        assert_eq!(refused.unwrap(), "cpu");
+        let ran = run.on_device("inside", |gpu| Ok(gpu.map_or("cpu", |_| "gpu")));
+        assert_eq!(ran.unwrap(), "gpu");
+        assert_eq!(run.gpu_stages, ["inside"]);
+        assert_eq!(run.notes, ["exposure-voxels ran on the CPU: too large for one binding"]);
+    }
+}

@@ -3,6 +3,7 @@ mod cli;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use occluder_cook::service::client;
+use std::sync::Mutex;
 
 /// Conservative occluders for game meshes: a few dozen triangles inside the mesh that cover
 /// as much of its silhouette as they can.
@@ -55,11 +56,38 @@ fn main() {
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
         .without_time()
         .init();
-    if let Err(e) = run(Cli::parse()) {
+    let parsed = Cli::parse();
+    std::panic::set_hook(Box::new(remember_panic));
+    let outcome = std::panic::catch_unwind(|| run(parsed)).unwrap_or_else(|_| {
+        let panic = LAST_PANIC.lock().unwrap_or_else(|e| e.into_inner()).take();
+        Err(anyhow::anyhow!(panic.unwrap_or_else(|| "internal error".into())))
+    });
+    if let Err(e) = outcome {
         eprintln!("error: {e:#}");
         let code = e.downcast_ref::<client::Exit>().map_or(1, client::Exit::code);
         std::process::exit(code);
     }
+}
+
+/// The last panic, as one line, for `main` to print should it reach it: panics that are caught
+/// on the way (an unreadable upload in the service) print nothing.
+static LAST_PANIC: Mutex<Option<String>> = Mutex::new(None);
+
+fn remember_panic(info: &std::panic::PanicHookInfo) {
+    let message = info
+        .payload()
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| info.payload().downcast_ref::<String>().cloned())
+        .unwrap_or_default();
+    let stage = occluder_cook::cook::last_stage().unwrap_or("startup");
+    let at = info
+        .location()
+        .map(|l| format!(" at {}:{}", l.file(), l.line()))
+        .unwrap_or_default();
+    let line = format!("internal error in stage `{stage}`: {message}{at}").replace('\n', " ");
+    tracing::debug!("{line}");
+    *LAST_PANIC.lock().unwrap_or_else(|e| e.into_inner()) = Some(line);
 }
 
 fn run(parsed: Cli) -> Result<()> {

@@ -87,9 +87,10 @@ fn cpsv_agrees_with_winding_on_corpus_meshes() {
             "{name}: cpsv agrees with winding at {:.3}% of empty voxels; {stats:?}",
             share * 100.0
         );
-        if closed {
-            assert!(share >= 0.99, "{name}: {share}");
-        }
+        // Open meshes leave a few cells undecided (teapot 99.976%, kenney-building-small-a
+        // 99.004% when this floor was set).
+        let floor = if closed { 0.99 } else { 0.98 };
+        assert!(share >= floor, "{name}: {share}");
     }
 }
 

@@ -1,5 +1,6 @@
 //! The GLBs we write pass the Khronos glTF validator (npm `gltf-validator`, installed by .ci/run
-//! into .ci/node_modules). Skips, saying so, where node or the validator is absent.
+//! into .ci/node_modules). Skips, saying so, where node or the validator is absent, except under
+//! CI (`CI` set), where that fails.
 
 use occluder_cook::mesh::{glb, shapes::torus};
 use occluder_cook::occluder::{Panel, Shape, WorldBox, merge::merge, panel_mesh};
@@ -10,6 +11,11 @@ use std::process::Command;
 fn occluder_glb_has_no_validator_errors() {
     let modules = Path::new(env!("CARGO_MANIFEST_DIR")).join(".ci/node_modules");
     if !modules.join("gltf-validator").is_dir() || Command::new("node").arg("--version").output().is_err() {
+        // .ci/run installs both, so under CI their absence is a failure.
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "gltf-validator or node not found under CI: .ci/run installs them"
+        );
         eprintln!("gltf-validator or node not found (run .ci/run to install it); skipping");
         return;
     }

@@ -24,6 +24,7 @@ pub struct CookArgs {
 pub fn run(args: CookArgs) -> Result<()> {
     let settings = args.settings.load()?;
     let start = Instant::now();
+    cook::mark_stage("ingest");
     let (mesh, stats) = mesh::load_file(&args.input)?;
     let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
     let cooked = cook::cook(mesh, stats, ingest_ms, &settings, args.eval)?;

@@ -1,8 +1,9 @@
 use super::{SettingsArgs, write};
 use anyhow::{Context, Result};
 use clap::Args;
+use occluder_cook::eval::{self, ViewSet};
+use occluder_cook::gpu::{self, GpuError};
 use occluder_cook::mesh::{self, topology::orient_closed_components};
-use occluder_cook::{eval, gpu};
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -27,17 +28,21 @@ pub fn run(args: EvalArgs) -> Result<()> {
         Err(e) => return Err(e).with_context(|| format!("occluder {}", args.occluder.display())),
     };
     let placement = gpu::for_choice(settings.cook.device)?;
-    let q = eval::evaluate(
-        &original_mesh,
-        &topology.boundary,
-        &occluder_mesh,
-        &settings.eval,
-        placement.gpu.as_deref(),
-    )?;
-    match &placement.gpu {
-        Some(gpu) => println!("rendered on        {}", gpu.name()),
-        None => println!("rendered on        cpu"),
-    }
+    let evaluate = |gpu| eval::evaluate(&original_mesh, &topology.boundary, &occluder_mesh, &settings.eval, gpu);
+    // Inside views are perspective: the CPU draws them.
+    let gpu = placement
+        .gpu
+        .as_deref()
+        .filter(|_| settings.eval.view_set == ViewSet::Outside);
+    let mut rendered_on = gpu.map_or("cpu".into(), |gpu| gpu.name());
+    let q = match evaluate(gpu) {
+        Err(GpuError::Unsupported(why)) => {
+            rendered_on = format!("cpu (the GPU could not: {why})");
+            evaluate(None)?
+        }
+        q => q?,
+    };
+    println!("rendered on        {rendered_on}");
     println!("triangles          {}", q.occluder_triangles);
     println!(
         "coverage           {:.2}% (min {:.2}%) over {} views",

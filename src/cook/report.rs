@@ -114,10 +114,17 @@ pub struct BoxReport {
 }
 
 impl BoxReport {
-    /// `voxel_boxes` as expanded, `candidates` those that do not show through an opening, and
-    /// `kept` the indices of the chosen ones; `inner` counts the inner voxels.
-    pub(super) fn new(voxel_boxes: &[VoxelBox], candidates: &[WorldBox], kept: &[usize], inner: usize) -> BoxReport {
-        let kept_voxels: usize = kept.iter().map(|&i| voxel_boxes[i].voxels()).sum();
+    /// `voxel_boxes` as expanded, `candidates` those that do not show through an opening (the
+    /// one at `sources[i]` of `voxel_boxes` refined into `candidates[i]`), and `kept` the indices
+    /// of the chosen candidates; `inner` counts the inner voxels.
+    pub(super) fn new(
+        voxel_boxes: &[VoxelBox],
+        candidates: &[WorldBox],
+        sources: &[usize],
+        kept: &[usize],
+        inner: usize,
+    ) -> BoxReport {
+        let kept_voxels: usize = kept.iter().map(|&i| voxel_boxes[sources[i]].voxels()).sum();
         BoxReport {
             candidates: voxel_boxes.len(),
             exposed: voxel_boxes.len() - candidates.len(),

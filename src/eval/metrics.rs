@@ -79,6 +79,7 @@ pub fn evaluate(
     // Inside views are all from where a player stands; outside ones are "below" when the
     // camera is under the object.
     let inside = settings.view_set == ViewSet::Inside;
+    let gpu = gpu.filter(|_| !inside);
     let images = |mesh: &Mesh| depth_images(&views, mesh, gpu);
     let (originals, occluders) = (images(original)?, images(occluder)?);
     let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = views

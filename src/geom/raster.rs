@@ -165,16 +165,14 @@ pub fn depth_image(view: &View, mesh: &Mesh) -> Vec<f32> {
     depth
 }
 
-/// Depth images of `mesh` in `views`: on `gpu` where one is given and can draw them
-/// (orthographic views, a mesh within one storage binding), else on the CPU.
+/// Depth images of `mesh` in `views`: on `gpu` where one is given, else on the CPU.
+/// `Unsupported` where the GPU cannot draw them (perspective views, a mesh larger than one
+/// storage binding): the caller's stage then runs on the CPU and says so.
 pub fn depth_images(views: &[View], mesh: &Mesh, gpu: Option<&Gpu>) -> Result<Vec<Vec<f32>>, GpuError> {
-    if let Some(gpu) = gpu {
-        match gpu::depth_images(gpu, mesh, views) {
-            Err(GpuError::Unsupported(why)) => tracing::debug!("depth images on the CPU: {why}"),
-            drawn => return drawn,
-        }
+    match gpu {
+        Some(gpu) => gpu::depth_images(gpu, mesh, views),
+        None => Ok(views.par_iter().map(|view| depth_image(view, mesh)).collect()),
     }
-    Ok(views.par_iter().map(|view| depth_image(view, mesh)).collect())
 }
 
 /// A coverage bitmask, one bit per pixel.

@@ -134,6 +134,7 @@ impl OpenViews {
 
     /// Clears the voxels of `inner` that a view sees at one of their corners, testing the
     /// corners on `gpu` when given (shaders/exposure.wgsl). Returns how many were cleared.
+    /// `Unsupported` where the GPU cannot test them, with `inner` untouched.
     pub fn remove_exposed(&self, grid: &Grid, inner: &mut [bool], gpu: Option<&Gpu>) -> Result<usize, GpuError> {
         // Neighbouring voxels share corners: test each corner once.
         let [_, ny, nz] = grid.dims;
@@ -152,13 +153,10 @@ impl OpenViews {
                 around(x, nx).any(|vx| around(y, ny).any(|vy| around(z, nz).any(|vz| inner[grid.index(vx, vy, vz)])))
             })
             .collect();
-        let seen = match gpu.map(|gpu| self.seen_corners_on(gpu, grid, &needed)) {
-            Some(Ok(seen)) => seen,
-            Some(Err(GpuError::Unsupported(why))) => {
-                tracing::debug!("exposed corners on the CPU: {why}");
-                self.seen_corners(grid, &needed)
-            }
-            Some(Err(e)) => return Err(e),
+        // `Unsupported` on the GPU leaves `inner` as it was, for the caller to run this again
+        // on the CPU.
+        let seen = match gpu {
+            Some(gpu) => self.seen_corners_on(gpu, grid, &needed)?,
             None => self.seen_corners(grid, &needed),
         };
         let exposed: Vec<usize> = (0..inner.len())

@@ -47,10 +47,12 @@ const CLAIM_GRACE_MS: u64 = 60_000;
 /// Most remembered uploads; the memo starts over beyond it.
 const SEEN_UPLOADS: usize = 100_000;
 
-/// Least recently used results, by key: (last access, bytes).
+/// Least recently used results, by key: (last access, bytes), with the keys in order of last
+/// access so that a victim is found without scanning every entry.
 #[derive(Default)]
 struct Lru {
     entries: HashMap<String, (u64, u64)>,
+    by_use: std::collections::BTreeMap<u64, String>,
     bytes: u64,
     clock: u64,
 }
@@ -58,25 +60,24 @@ struct Lru {
 impl Lru {
     fn touch(&mut self, key: &str, bytes: u64) {
         self.clock += 1;
-        if let Some(old) = self.entries.insert(key.to_string(), (self.clock, bytes)) {
-            self.bytes -= old.1;
+        if let Some((used, old)) = self.entries.insert(key.to_string(), (self.clock, bytes)) {
+            self.by_use.remove(&used);
+            self.bytes -= old;
         }
+        self.by_use.insert(self.clock, key.to_string());
         self.bytes += bytes;
     }
 
     fn remove(&mut self, key: &str) {
-        if let Some((_, bytes)) = self.entries.remove(key) {
+        if let Some((used, bytes)) = self.entries.remove(key) {
+            self.by_use.remove(&used);
             self.bytes -= bytes;
         }
     }
 
     /// The least recently used key that `keep` does not hold on to.
     fn oldest(&self, keep: impl Fn(&str) -> bool) -> Option<String> {
-        self.entries
-            .iter()
-            .filter(|(k, _)| !keep(k))
-            .min_by_key(|(_, (used, _))| *used)
-            .map(|(k, _)| k.clone())
+        self.by_use.values().find(|k| !keep(k)).cloned()
     }
 }
 
@@ -681,4 +682,26 @@ pub async fn work(settings: Settings) -> anyhow::Result<()> {
     let _ = stop.send(true);
     let _ = pool.await;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Lru;
+
+    #[test]
+    fn lru_finds_the_least_recently_used_key_not_kept() {
+        let mut lru = Lru::default();
+        for (key, bytes) in [("a", 10), ("b", 20), ("c", 30)] {
+            lru.touch(key, bytes);
+        }
+        lru.touch("a", 15);
+        assert_eq!(lru.bytes, 65);
+        assert_eq!(lru.oldest(|_| false).as_deref(), Some("b"));
+        assert_eq!(lru.oldest(|k| k == "b").as_deref(), Some("c"));
+        lru.remove("b");
+        assert_eq!(lru.bytes, 45);
+        assert_eq!(lru.oldest(|_| false).as_deref(), Some("c"));
+        assert_eq!(lru.oldest(|_| true), None);
+        assert_eq!(lru.by_use.len(), lru.entries.len());
+    }
 }

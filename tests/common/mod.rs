@@ -68,7 +68,8 @@ pub fn cook_evaluated(mesh: Mesh) -> Cooked {
     cook(mesh, IngestStats::default(), 0.0, &defaults(), true).expect("cooks")
 }
 
-/// The shared corpus of meshes, or None (with a message saying so) when it is absent.
+/// The shared corpus of meshes, or None (with a message saying so) when it is absent; under CI
+/// (`CI` set) its absence fails the test.
 pub fn corpus() -> Option<PathBuf> {
     shared_dir("OCCLUDER_CORPUS", "meshes")
 }
@@ -83,14 +84,19 @@ fn shared_dir(variable: &str, folder: &str) -> Option<PathBuf> {
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared").join(folder));
     if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "{folder} not found at {}: set {variable} to run the tests that need them; skipping",
-            dir.display()
-        );
-        None
+        return Some(dir);
     }
+    // CI has ../shared beside the clone: there a missing corpus is a failure, not a skip.
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{folder} not found at {} under CI: the corpus tests must run there",
+        dir.display()
+    );
+    eprintln!(
+        "{folder} not found at {}: set {variable} to run the tests that need them; skipping",
+        dir.display()
+    );
+    None
 }
 
 /// Runs the binary: (exit code, stdout, stderr).

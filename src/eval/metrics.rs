@@ -67,10 +67,13 @@ pub fn evaluate(
 ) -> Result<Quality, GpuError> {
     let (center, radius) = original.bounding_sphere();
     let views: Vec<View> = match settings.view_set {
-        ViewSet::Outside => fibonacci_sphere(settings.views)
-            .into_iter()
-            .map(|dir| View::new(dir, center, radius, settings.pixels))
-            .collect(),
+        ViewSet::Outside => {
+            let extra = margin_pixels(occluder, center, radius, settings.pixels);
+            fibonacci_sphere(settings.views)
+                .into_iter()
+                .map(|dir| View::new(dir, center, radius, settings.pixels).widened(extra))
+                .collect()
+        }
         ViewSet::Inside => {
             let (lo, hi) = original.bounds();
             View::cube_map(((lo + hi) * 0.5).as_dvec3(), settings.pixels, 2e-4 * radius)
@@ -131,6 +134,28 @@ pub fn evaluate(
             .max_by_key(|v| v.1)
             .map(|v| (v.3.to_array(), v.1)),
     })
+}
+
+/// Most pixels added on each side of an outside view for an occluder that reaches past the
+/// original's frame, as a share of the view's size: the frame at most doubles, so the images at
+/// most take four times the memory. Farther out, an occluder is already plainly wrong.
+const MAX_MARGIN: f64 = 0.5;
+
+/// Pixels to add on each side of an outside view framing the sphere (`center`, `radius`) in
+/// `pixels`, so that the frame holds `occluder` too at the same scale: what sticks out sideways
+/// is judged like the rest.
+fn margin_pixels(occluder: &Mesh, center: DVec3, radius: f64, pixels: usize) -> usize {
+    let reach = occluder
+        .positions
+        .iter()
+        .map(|p| p.as_dvec3().distance(center))
+        .fold(0.0, f64::max);
+    let per_unit = pixels as f64 / (2.0 * radius.max(1e-12));
+    let extra = ((reach - radius) * per_unit).ceil();
+    if extra.is_nan() || extra <= 0.0 {
+        return 0;
+    }
+    extra.min(MAX_MARGIN * pixels as f64) as usize
 }
 
 /// `n` points spread over the mesh's surface by area, from a fixed seed.

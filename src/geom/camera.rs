@@ -32,6 +32,22 @@ impl View {
         View::looking(dir, lens, pixels, 2e-4 * radius)
     }
 
+    /// This orthographic view with `extra` more pixels on each side, at the same scale and
+    /// depth tolerance: a wider frame whose pixel centres fall on this one's. Perspective views
+    /// come back unchanged.
+    pub fn widened(&self, extra: usize) -> View {
+        let Lens::Orthographic { center, radius } = self.lens else {
+            return self.clone();
+        };
+        let pixels = self.pixels + 2 * extra;
+        let radius = radius * pixels as f64 / self.pixels as f64;
+        View {
+            lens: Lens::Orthographic { center, radius },
+            pixels,
+            ..self.clone()
+        }
+    }
+
     /// A perspective camera at `eye` with a 90° field of view, looking along `-dir`.
     /// `tolerance` is the depth tolerance of "nearer than" tests.
     pub fn perspective(eye: DVec3, dir: DVec3, pixels: usize, tolerance: f64) -> View {

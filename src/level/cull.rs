@@ -7,7 +7,7 @@
 //!
 //! Cameras: a seeded random point in the level's bounds (shrunk by a tenth on each side), at a
 //! random height in the lower half, looking in a random horizontal direction with a 90° field
-//! of view.
+//! of view. A point inside an instance's solid, where no player stands, is drawn again.
 
 pub mod gpu;
 
@@ -15,7 +15,10 @@ use super::{Level, MeshRef};
 use crate::geom::camera::View;
 use crate::geom::raster::{rasterize, rasterize_inner};
 use crate::gpu::Gpu;
+use crate::mesh::BoundaryEdge;
+use crate::mesh::topology::orient_closed_components;
 use crate::mesh::{Mesh, load_file, point_bounds};
+use crate::voxel::winding::WindingField;
 use glam::{DMat4, DVec3};
 use gpu::InstanceScene;
 use rayon::prelude::*;
@@ -28,6 +31,9 @@ const TRUTH_PIXELS: usize = 512;
 #[derive(Debug, Serialize)]
 pub struct CullReport {
     pub cameras: usize,
+    /// Camera positions drawn inside an instance's solid, where no player stands, and drawn
+    /// again.
+    pub cameras_in_solids: usize,
     pub instances: usize,
     /// Mean over cameras of occlusion-culled / in-view instances.
     pub culled_share: f64,
@@ -51,14 +57,10 @@ pub fn cull_eval(
     gpu: Option<&Gpu>,
 ) -> Result<CullReport, String> {
     let meshes = load_meshes(level)?;
-    let boxes: Vec<(DVec3, DVec3)> = level
-        .instances
-        .iter()
-        .map(|(m, matrix)| point_bounds(placed_positions(&meshes[m], matrix)))
-        .collect();
+    let boxes = instance_bounds(level, &meshes);
     let (lo, hi) = point_bounds(boxes.iter().flat_map(|&(l, h)| [l, h]));
     let tolerance = 1e-4 * (hi - lo).length();
-    let poses = camera_poses(lo, hi, cameras);
+    let (poses, cameras_in_solids) = free_camera_poses(level, &meshes, &boxes, (lo, hi), cameras)?;
     // Views look along -dir. Their near plane sits far closer than the depth tolerance, so
     // that a wall next to the eye is not clipped away.
     let near = tolerance * 1e-3;
@@ -108,6 +110,7 @@ pub fn cull_eval(
         .map(|(c, r)| (poses[c].0.to_array(), poses[c].1.to_array(), r.2));
     Ok(CullReport {
         cameras,
+        cameras_in_solids,
         instances: level.instances.len(),
         culled_share: shares.iter().sum::<f64>() / shares.len().max(1) as f64,
         wrongly_culled: results.iter().map(|r| r.2).sum(),
@@ -135,25 +138,74 @@ fn load_meshes(level: &Level) -> Result<HashMap<&MeshRef, Mesh>, String> {
     Ok(meshes)
 }
 
+/// Each instance's bounds, placed.
+fn instance_bounds(level: &Level, meshes: &HashMap<&MeshRef, Mesh>) -> Vec<(DVec3, DVec3)> {
+    level
+        .instances
+        .iter()
+        .map(|(m, matrix)| point_bounds(placed_positions(&meshes[m], matrix)))
+        .collect()
+}
+
 fn placed_positions<'a>(mesh: &'a Mesh, matrix: &'a DMat4) -> impl Iterator<Item = DVec3> + 'a {
     mesh.positions.iter().map(|p| matrix.transform_point3(p.as_dvec3()))
 }
 
-/// Seeded random cameras (eye, horizontal forward direction) within the level's bounds.
-fn camera_poses(lo: DVec3, hi: DVec3, cameras: usize) -> Vec<(DVec3, DVec3)> {
+/// Candidate camera positions drawn per camera before the level counts as having no free space.
+const DRAWS_PER_CAMERA: usize = 100;
+
+/// Seeded random cameras (eye, horizontal forward direction) within the level's bounds, each
+/// standing in free space, where a player could be: inside no instance's solid (its winding
+/// number there under a half). Also returns how many positions were drawn inside a solid.
+fn free_camera_poses(
+    level: &Level,
+    meshes: &HashMap<&MeshRef, Mesh>,
+    boxes: &[(DVec3, DVec3)],
+    (lo, hi): (DVec3, DVec3),
+    cameras: usize,
+) -> Result<(Vec<(DVec3, DVec3)>, usize), String> {
+    let solids: HashMap<&MeshRef, (Mesh, Vec<BoundaryEdge>)> = meshes
+        .iter()
+        .map(|(&m, mesh)| {
+            let mut mesh = mesh.clone();
+            let boundary = orient_closed_components(&mut mesh).boundary;
+            (m, (mesh, boundary))
+        })
+        .collect();
+    let fields: HashMap<&MeshRef, WindingField> = solids
+        .iter()
+        .map(|(&m, (mesh, boundary))| (m, WindingField::new(mesh, boundary)))
+        .collect();
+    let inverses: Vec<DMat4> = level.instances.iter().map(|(_, matrix)| matrix.inverse()).collect();
+    let in_a_solid = |eye: DVec3| {
+        boxes.iter().enumerate().any(|(i, (b_lo, b_hi))| {
+            eye.cmpge(*b_lo).all()
+                && eye.cmple(*b_hi).all()
+                && fields[&level.instances[i].0].winding(inverses[i].transform_point3(eye)) >= 0.5
+        })
+    };
     let size = hi - lo;
     let mut rng = fastrand::Rng::with_seed(0xc0ffee);
-    (0..cameras)
-        .map(|_| {
-            let eye = DVec3::new(
-                lo.x + size.x * (0.1 + 0.8 * rng.f64()),
-                lo.y + size.y * (0.05 + 0.45 * rng.f64()),
-                lo.z + size.z * (0.1 + 0.8 * rng.f64()),
-            );
-            let yaw = rng.f64() * std::f64::consts::TAU;
-            (eye, DVec3::new(yaw.cos(), 0.0, yaw.sin()))
-        })
-        .collect()
+    let (mut poses, mut refused) = (Vec::with_capacity(cameras), 0);
+    while poses.len() < cameras {
+        if refused >= DRAWS_PER_CAMERA * cameras {
+            return Err(format!(
+                "no free space for cameras: {refused} positions drawn in the level's bounds all lie inside solids"
+            ));
+        }
+        let eye = DVec3::new(
+            lo.x + size.x * (0.1 + 0.8 * rng.f64()),
+            lo.y + size.y * (0.05 + 0.45 * rng.f64()),
+            lo.z + size.z * (0.1 + 0.8 * rng.f64()),
+        );
+        let yaw = rng.f64() * std::f64::consts::TAU;
+        if in_a_solid(eye) {
+            refused += 1;
+        } else {
+            poses.push((eye, DVec3::new(yaw.cos(), 0.0, yaw.sin())));
+        }
+    }
+    Ok((poses, refused))
 }
 
 /// The ground truth of every view on the GPU: which instances show at least one pixel.
@@ -277,4 +329,35 @@ fn ground_truth(view: &View, level: &Level, meshes: &HashMap<&MeshRef, Mesh>, bo
         visible[i as usize] = true;
     }
     visible
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::occluder::{WorldBox, merge::merge};
+
+    #[test]
+    fn cameras_stand_outside_the_solids() {
+        // A block filling most of the level, and a small one off its corner that widens the
+        // level's bounds: most positions drawn fall inside the block.
+        let block = merge(&[WorldBox {
+            lo: [0.0; 3],
+            hi: [8.0, 10.0, 8.0],
+        }]);
+        let corner = DMat4::from_translation(DVec3::new(9.0, 0.0, 9.0)) * DMat4::from_scale(DVec3::splat(0.1));
+        let level = Level {
+            name: "blocks".into(),
+            instances: vec![(MeshRef::Part(0), DMat4::IDENTITY), (MeshRef::Part(0), corner)],
+            parts: vec![("block".into(), block, Default::default())],
+        };
+        let meshes = load_meshes(&level).expect("parts load");
+        let boxes = instance_bounds(&level, &meshes);
+        let bounds = point_bounds(boxes.iter().flat_map(|&(l, h)| [l, h]));
+        let (poses, refused) = free_camera_poses(&level, &meshes, &boxes, bounds, 50).expect("free space exists");
+        assert_eq!(poses.len(), 50);
+        assert!(refused > 50, "{refused} drawn inside the block");
+        for (eye, _) in poses {
+            assert!(eye.x > 8.0 || eye.z > 8.0, "a camera inside the block at {eye}");
+        }
+    }
 }

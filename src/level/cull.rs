@@ -7,7 +7,8 @@
 //!
 //! Cameras: a seeded random point in the level's bounds (shrunk by a tenth on each side), at a
 //! random height in the lower half, looking in a random horizontal direction with a 90° field
-//! of view. A point inside an instance's solid, where no player stands, is drawn again.
+//! of view. A point inside an instance's solid, where no player stands, is drawn again (in the
+//! whole bounds where the lower half is all solid).
 
 pub mod gpu;
 
@@ -184,26 +185,35 @@ fn free_camera_poses(
                 && fields[&level.instances[i].0].winding(inverses[i].transform_point3(eye)) >= 0.5
         })
     };
+    // Where players stand: the lower half of the bounds, shrunk by a tenth on each side; where
+    // that is all solid (a level of stacked blocks), anywhere in the bounds.
     let size = hi - lo;
+    let regions = [
+        (
+            lo + size * DVec3::new(0.1, 0.05, 0.1),
+            size * DVec3::new(0.8, 0.45, 0.8),
+        ),
+        (lo, size),
+    ];
     let mut rng = fastrand::Rng::with_seed(0xc0ffee);
     let (mut poses, mut refused) = (Vec::with_capacity(cameras), 0);
-    while poses.len() < cameras {
-        if refused >= DRAWS_PER_CAMERA * cameras {
-            return Err(format!(
-                "no free space for cameras: {refused} positions drawn in the level's bounds all lie inside solids"
-            ));
+    for (corner, extent) in regions {
+        let mut draws = 0;
+        while poses.len() < cameras && draws < DRAWS_PER_CAMERA * cameras {
+            draws += 1;
+            let eye = corner + extent * DVec3::new(rng.f64(), rng.f64(), rng.f64());
+            let yaw = rng.f64() * std::f64::consts::TAU;
+            if in_a_solid(eye) {
+                refused += 1;
+            } else {
+                poses.push((eye, DVec3::new(yaw.cos(), 0.0, yaw.sin())));
+            }
         }
-        let eye = DVec3::new(
-            lo.x + size.x * (0.1 + 0.8 * rng.f64()),
-            lo.y + size.y * (0.05 + 0.45 * rng.f64()),
-            lo.z + size.z * (0.1 + 0.8 * rng.f64()),
-        );
-        let yaw = rng.f64() * std::f64::consts::TAU;
-        if in_a_solid(eye) {
-            refused += 1;
-        } else {
-            poses.push((eye, DVec3::new(yaw.cos(), 0.0, yaw.sin())));
-        }
+    }
+    if poses.len() < cameras {
+        return Err(format!(
+            "no free space for cameras: {refused} positions drawn in the level's bounds all lie inside solids"
+        ));
     }
     Ok((poses, refused))
 }

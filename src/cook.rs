@@ -345,7 +345,7 @@ impl<'a> Run<'a> {
     ) -> Result<T, GpuError> {
         let gpu = self.gpu.clone();
         let (out, fallback) = self.stage(stage, || match work(gpu.as_deref()) {
-            Err(GpuError::Unsupported(why)) => (work(None), Some(why)),
+            Err(GpuError::Unsupported(why)) if gpu.is_some() => (work(None), Some(why)),
             out => (out, None),
         });
         match fallback {

@@ -1,8 +1,10 @@
 //! `bench`: every mesh of a corpus through the pipeline, one table row each, plus JSON.
 
 use crate::config::Settings;
-use crate::cook::{Report, Timings, cook};
-use crate::mesh::{Format, load_file};
+use crate::cook::{Cooked, Report, Timings, cook};
+use crate::eval::{Quality, evaluate_where_it_can};
+use crate::gpu::{self, Gpu, GpuError};
+use crate::mesh::{Format, Mesh, load_file, topology::orient_closed_components};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -12,6 +14,9 @@ pub struct BenchRow {
     pub mesh: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub report: Option<Report>,
+    /// The occluder judged again from more views (`bench --judge-views`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub judged: Option<Quality>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
@@ -36,10 +41,12 @@ pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Cooks and evaluates every file, printing a row as each finishes.
-pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
+/// Cooks and evaluates every file, printing a row as each finishes; with `judge_views` above
+/// 0, judges each occluder again from that many views, on the cook's device when it has one.
+pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<BenchRow> {
+    let judge_gpu = gpu::for_choice(settings.cook.device).ok().and_then(|p| p.gpu);
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}",
         "mesh",
         "dev",
         "tris_in",
@@ -58,7 +65,8 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
         "pieces_ms",
         "cook_ms",
         "gpu_ms",
-        "eval_ms"
+        "eval_ms",
+        format!("nb@{judge_views}"),
     );
     files
         .iter()
@@ -70,15 +78,21 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
             let start = Instant::now();
             let cooked = load_file(path).map_err(|e| e.to_string()).and_then(|(mesh, stats)| {
                 let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
-                cook(mesh, stats, ingest_ms, settings, true).map_err(|e| e.to_string())
+                let cooked = cook(mesh.clone(), stats, ingest_ms, settings, true).map_err(|e| e.to_string())?;
+                let judged = (judge_views > 0)
+                    .then(|| judge(mesh, &cooked, settings, judge_views, judge_gpu.as_deref()))
+                    .transpose()
+                    .map_err(|e| e.to_string())?;
+                Ok((cooked, judged))
             });
             match cooked {
-                Ok(cooked) => {
+                Ok((cooked, judged)) => {
                     let report = cooked.report;
-                    print_row(&name, &report);
+                    print_row(&name, &report, judged.as_ref());
                     BenchRow {
                         mesh: name,
                         report: Some(report),
+                        judged,
                         error: None,
                     }
                 }
@@ -87,12 +101,30 @@ pub fn run(files: &[PathBuf], settings: &Settings) -> Vec<BenchRow> {
                     BenchRow {
                         mesh: name,
                         report: None,
+                        judged: None,
                         error: Some(e),
                     }
                 }
             }
         })
         .collect()
+}
+
+/// The quality of `cooked`'s occluder for `original` from `views` views, on `gpu` where it can.
+fn judge(
+    mut original: Mesh,
+    cooked: &Cooked,
+    settings: &Settings,
+    views: usize,
+    gpu: Option<&Gpu>,
+) -> Result<Quality, GpuError> {
+    let topology = orient_closed_components(&mut original);
+    let eval = crate::eval::EvalSettings {
+        views,
+        ..settings.eval.clone()
+    };
+    let (judged, _) = evaluate_where_it_can(&original, &topology.boundary, &cooked.occluder.mesh(), &eval, gpu)?;
+    Ok(judged)
 }
 
 /// The stages of the exposure test, all summed into `expo_ms`.
@@ -102,7 +134,7 @@ fn stage_sum(timings: &Timings, stages: &[&str]) -> f64 {
     stages.iter().map(|s| timings.get(s)).sum()
 }
 
-fn print_row(name: &str, r: &Report) {
+fn print_row(name: &str, r: &Report, judged: Option<&Quality>) {
     let q = r.quality.as_ref().expect("bench always evaluates");
     let t = &r.timings_ms;
     let cook_ms = t.total() - t.get("eval");
@@ -113,7 +145,7 @@ fn print_row(name: &str, r: &Report) {
         false => format!("{:.1}", device.total() - device.get("eval")),
     };
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8} {:>8.1}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8} {:>8.1} {:>9}",
         name,
         match (r.gpu_stages.is_empty(), r.gpu_stages.contains(&"inside")) {
             (true, _) => "cpu",
@@ -137,13 +169,27 @@ fn print_row(name: &str, r: &Report) {
         cook_ms,
         gpu_ms,
         t.get("eval"),
+        judged.map_or("-".into(), |q| q.false_pixels_non_below.to_string()),
     );
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{EXPOSURE_STAGES, stage_sum};
-    use crate::cook::{STAGES, Timings};
+    use super::{EXPOSURE_STAGES, judge, stage_sum};
+    use crate::cook::{STAGES, Timings, cook};
+    use crate::mesh::shapes::torus;
+
+    #[test]
+    fn judge_views_the_occluder_from_as_many_directions_as_asked() {
+        let settings = crate::config::load(None, &[]).expect("defaults load");
+        let mesh = torus(1.0, 0.45, 32, 16);
+        let cooked = cook(mesh.clone(), Default::default(), 0.0, &settings, false).expect("cooks");
+        let judged = judge(mesh, &cooked, &settings, 200, None).expect("the CPU judges");
+        assert_eq!(judged.views, 200);
+        assert_eq!(judged.views_non_below, 100);
+        assert_eq!(judged.false_pixels, 0);
+        assert!(judged.coverage > 0.5, "{judged:?}");
+    }
 
     #[test]
     fn expo_ms_sums_every_exposure_stage() {

@@ -11,6 +11,10 @@ pub struct BenchArgs {
     corpus: Option<PathBuf>,
     #[arg(long, default_value = "bench.json")]
     json: PathBuf,
+    /// Judge each occluder again from this many views, into the JSON (`judged`) and the table's
+    /// last column (non-below false pixels); 0 skips it.
+    #[arg(long, default_value_t = 1024)]
+    judge_views: usize,
     #[command(flatten)]
     settings: SettingsArgs,
 }
@@ -28,7 +32,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         );
     }
     let files = bench::corpus_files(&corpus)?;
-    let rows = bench::run(&files, &settings);
+    let rows = bench::run(&files, &settings, args.judge_views);
     if let Some(r) = rows.iter().find_map(|row| row.report.as_ref()) {
         println!(
             "device: {} (dev gpu: every GPU stage on it; mix: inside fell back to the CPU)",

@@ -2,7 +2,7 @@ use super::{SettingsArgs, write};
 use anyhow::{Context, Result};
 use clap::Args;
 use occluder_cook::eval::{self, ViewSet};
-use occluder_cook::gpu::{self, GpuError};
+use occluder_cook::gpu;
 use occluder_cook::mesh::{self, topology::orient_closed_components};
 use std::path::PathBuf;
 
@@ -28,19 +28,17 @@ pub fn run(args: EvalArgs) -> Result<()> {
         Err(e) => return Err(e).with_context(|| format!("occluder {}", args.occluder.display())),
     };
     let placement = gpu::for_choice(settings.cook.device)?;
-    let evaluate = |gpu| eval::evaluate(&original_mesh, &topology.boundary, &occluder_mesh, &settings.eval, gpu);
     // Inside views are perspective: the CPU draws them.
     let gpu = placement
         .gpu
         .as_deref()
         .filter(|_| settings.eval.view_set == ViewSet::Outside);
-    let mut rendered_on = gpu.map_or("cpu".into(), |gpu| gpu.name());
-    let q = match evaluate(gpu) {
-        Err(GpuError::Unsupported(why)) => {
-            rendered_on = format!("cpu (the GPU could not: {why})");
-            evaluate(None)?
-        }
-        q => q?,
+    let (q, why_cpu) =
+        eval::evaluate_where_it_can(&original_mesh, &topology.boundary, &occluder_mesh, &settings.eval, gpu)?;
+    let rendered_on = match (gpu, why_cpu) {
+        (_, Some(why)) => format!("cpu (the GPU could not: {why})"),
+        (Some(gpu), None) => gpu.name(),
+        (None, None) => "cpu".into(),
     };
     println!("rendered on        {rendered_on}");
     println!("triangles          {}", q.occluder_triangles);

@@ -136,6 +136,21 @@ pub fn evaluate(
     })
 }
 
+/// [`evaluate`] on `gpu` where it can draw the views, else on the CPU: the figures, and why the
+/// CPU drew them when the GPU could not.
+pub fn evaluate_where_it_can(
+    original: &Mesh,
+    boundary: &[BoundaryEdge],
+    occluder: &Mesh,
+    settings: &EvalSettings,
+    gpu: Option<&Gpu>,
+) -> Result<(Quality, Option<String>), GpuError> {
+    match evaluate(original, boundary, occluder, settings, gpu) {
+        Err(GpuError::Unsupported(why)) => Ok((evaluate(original, boundary, occluder, settings, None)?, Some(why))),
+        judged => Ok((judged?, None)),
+    }
+}
+
 /// Most pixels added on each side of an outside view for an occluder that reaches past the
 /// original's frame, as a share of the view's size: the frame at most doubles, so the images at
 /// most take four times the memory. Farther out, an occluder is already plainly wrong.

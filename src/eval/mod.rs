@@ -4,4 +4,4 @@
 pub mod metrics;
 pub mod proximity;
 
-pub use metrics::{EvalSettings, Quality, ViewSet, evaluate};
+pub use metrics::{EvalSettings, Quality, ViewSet, evaluate, evaluate_where_it_can};

@@ -10,7 +10,7 @@ mod report;
 pub use report::{BoxReport, Cooked, InputReport, OccluderReport, PanelReport, Report, Timings, VoxelReport};
 
 use crate::config::{CookSettings, Settings};
-use crate::eval::{Quality, ViewSet, evaluate};
+use crate::eval::{Quality, evaluate};
 use crate::geom::raster;
 use crate::gpu::{self, Gpu, GpuError};
 use crate::key::{PIPELINE_VERSION, cache_key};
@@ -408,8 +408,7 @@ impl<'a> Run<'a> {
         occluder: &Occluder,
         settings: &Settings,
     ) -> Result<Quality, GpuError> {
-        let outside = settings.eval.view_set == ViewSet::Outside;
-        if !outside {
+        if !settings.eval.draws_on_gpu() {
             return self.stage("eval", || {
                 evaluate(mesh, &topology.boundary, &occluder.mesh(), &settings.eval, None)
             });

@@ -1,7 +1,7 @@
 use super::{SettingsArgs, write};
 use anyhow::{Context, Result};
 use clap::Args;
-use occluder_cook::eval::{self, ViewSet};
+use occluder_cook::eval;
 use occluder_cook::gpu;
 use occluder_cook::mesh::{self, topology::orient_closed_components};
 use std::path::PathBuf;
@@ -28,11 +28,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         Err(e) => return Err(e).with_context(|| format!("occluder {}", args.occluder.display())),
     };
     let placement = gpu::for_choice(settings.cook.device)?;
-    // Inside views are perspective: the CPU draws them.
-    let gpu = placement
-        .gpu
-        .as_deref()
-        .filter(|_| settings.eval.view_set == ViewSet::Outside);
+    let gpu = placement.gpu.as_deref().filter(|_| settings.eval.draws_on_gpu());
     let (q, why_cpu) =
         eval::evaluate_where_it_can(&original_mesh, &topology.boundary, &occluder_mesh, &settings.eval, gpu)?;
     let rendered_on = match (gpu, why_cpu) {

@@ -23,6 +23,14 @@ pub struct EvalSettings {
     pub outside_samples: usize,
 }
 
+impl EvalSettings {
+    /// Whether [`evaluate`] draws these views on a GPU it is given: the outside views only;
+    /// inside views are perspective, and the CPU draws them.
+    pub fn draws_on_gpu(&self) -> bool {
+        self.view_set == ViewSet::Outside
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ViewSet {
@@ -82,7 +90,7 @@ pub fn evaluate(
     // Inside views are all from where a player stands; outside ones are "below" when the
     // camera is under the object.
     let inside = settings.view_set == ViewSet::Inside;
-    let gpu = gpu.filter(|_| !inside);
+    let gpu = gpu.filter(|_| settings.draws_on_gpu());
     let images = |mesh: &Mesh| depth_images(&views, mesh, gpu);
     let (originals, occluders) = (images(original)?, images(occluder)?);
     let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = views

@@ -306,12 +306,22 @@ pub(crate) fn render_target(
     })
 }
 
-/// A pipeline drawing a mesh's positions (three floats a vertex) through `source`'s vertex
-/// entry `place`, both sides, depth-tested with `compare`, and with `fragment` (an entry and
-/// its target's format) where a colour is written.
+const POSITION_ATTRIBUTES: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![0 => Float32x3];
+
+/// The vertices of [`MeshBuffers`]: three floats each.
+pub(crate) const POSITIONS: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferLayout {
+    array_stride: 12,
+    step_mode: wgpu::VertexStepMode::Vertex,
+    attributes: &POSITION_ATTRIBUTES,
+};
+
+/// A pipeline drawing vertices laid out as `vertices` through `source`'s vertex entry `place`,
+/// both sides, depth-tested with `compare`, and with `fragment` (an entry and its target's
+/// format) where a colour is written.
 pub(crate) fn mesh_pipeline(
     gpu: &Gpu,
     source: &str,
+    vertices: wgpu::VertexBufferLayout,
     compare: wgpu::CompareFunction,
     fragment: Option<(&str, wgpu::TextureFormat)>,
 ) -> wgpu::RenderPipeline {
@@ -327,11 +337,7 @@ pub(crate) fn mesh_pipeline(
             module: &module,
             entry_point: Some("place"),
             compilation_options: Default::default(),
-            buffers: &[Some(wgpu::VertexBufferLayout {
-                array_stride: 12,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-            })],
+            buffers: &[Some(vertices)],
         },
         primitive: wgpu::PrimitiveState::default(),
         depth_stencil: Some(depth_test(compare)),

@@ -4,7 +4,7 @@
 //! [`super`].
 
 use crate::geom::camera::View;
-use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, depth_attachment, depth_test, render_target};
+use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, depth_attachment, mesh_pipeline, render_target};
 use glam::DVec3;
 use std::ops::Range;
 use wgpu::util::DeviceExt;
@@ -55,36 +55,19 @@ impl<'a> InstanceScene<'a> {
                 usage,
             })
         };
-        let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("cull"),
-            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-        });
-        let pipeline = gpu.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("cull"),
-            layout: None,
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("place"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: 16,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32],
-                })],
-            },
-            // Both sides, as the twin draws them.
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: Some(depth_test(wgpu::CompareFunction::Greater)),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("instance_id"),
-                compilation_options: Default::default(),
-                targets: &[Some(IDS.into())],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        // Positions and the instance's id; both sides drawn, as the twin draws them.
+        let vertex_layout = wgpu::VertexBufferLayout {
+            array_stride: 16,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Uint32],
+        };
+        let pipeline = mesh_pipeline(
+            gpu,
+            SHADER,
+            vertex_layout,
+            wgpu::CompareFunction::Greater,
+            Some(("instance_id", IDS)),
+        );
         InstanceScene {
             gpu,
             origin,

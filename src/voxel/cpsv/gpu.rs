@@ -4,7 +4,7 @@
 //! [`super`].
 
 use crate::geom::camera::View;
-use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, MeshBuffers, depth_attachment, mesh_pipeline, render_target};
+use crate::gpu::{DEPTH_FORMAT, Gpu, GpuError, MeshBuffers, POSITIONS, depth_attachment, mesh_pipeline, render_target};
 use crate::mesh::Mesh;
 use glam::DVec3;
 
@@ -64,7 +64,13 @@ impl<'a> CubeMaps<'a> {
                 gpu,
                 buffers,
                 // Both sides drawn (which one shows is the point), nearest kept: reversed depth.
-                pipeline: mesh_pipeline(device, SHADER, wgpu::CompareFunction::Greater, Some(("side", IMAGE))),
+                pipeline: mesh_pipeline(
+                    device,
+                    SHADER,
+                    POSITIONS,
+                    wgpu::CompareFunction::Greater,
+                    Some(("side", IMAGE)),
+                ),
                 pixels,
                 corners,
             })

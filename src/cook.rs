@@ -126,11 +126,10 @@ pub fn cook_with_progress(
         false => Vec::new(),
     };
     let quad_count = quads_found.len();
-    let mut panels = match &open_views {
-        None => quads_found,
+    let (mut panels, quads_shown) = match &open_views {
+        None => (quads_found, [0, 0]),
         Some(views) => run.stage("exposure-quads", || unexposed_quads(views, quads_found)),
     };
-    let kept_quads = panels.len();
     if uses(Shape::Patches) {
         panels.extend(run.stage("patches", || find_patches(&mesh, &topology, cook)));
     }
@@ -142,8 +141,9 @@ pub fn cook_with_progress(
     };
     let inner_count = inner.iter().filter(|&&v| v).count();
     let exposed_boxes = voxel_boxes.len() - box_candidates.len();
-    let exposed = [exposed_voxels, exposed_boxes, quad_count - kept_quads];
+    let exposed = [exposed_voxels, exposed_boxes, quads_shown[0]];
     let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
+    run.note_exposure(open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
     run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
     let quality = match with_eval {
         false => None,
@@ -158,7 +158,7 @@ pub fn cook_with_progress(
             &selection.boxes,
             inner_count,
         ),
-        panels: PanelReport::new(quad_count, kept_quads, panels.len(), &occluder),
+        panels: PanelReport::new(quad_count, quads_shown, panels.len(), &occluder),
         occluder: OccluderReport::new(&occluder, selection.boxes.len(), selection.gains),
         input: InputReport {
             triangles: mesh.triangles.len(),
@@ -270,11 +270,20 @@ fn find_quads(
     quads::find(mesh, cook.quad_grid, &inside)
 }
 
-fn unexposed_quads(views: &OpenViews, quads: Vec<Panel>) -> Vec<Panel> {
-    quads
+/// The quads no view sees; one that shows in part is cut down to its largest hidden rectangle.
+/// Also returns how many were dropped and how many cut.
+fn unexposed_quads(views: &OpenViews, quads: Vec<Panel>) -> (Vec<Panel>, [usize; 2]) {
+    let found = quads.len();
+    let kept: Vec<(Panel, bool)> = quads
         .into_par_iter()
-        .filter(|q| views.hides(&q.triangles(), false))
-        .collect()
+        .filter_map(|q| match views.hides(&q.triangles(), false) {
+            true => Some((q, false)),
+            false => views.hidden_part(&q).map(|part| (part, true)),
+        })
+        .collect();
+    let cut = kept.iter().filter(|(_, cut)| *cut).count();
+    let dropped = found - kept.len();
+    (kept.into_iter().map(|(q, _)| q).collect(), [dropped, cut])
 }
 
 fn find_patches(mesh: &Mesh, topology: &Topology, cook: &CookSettings) -> Vec<Panel> {
@@ -376,6 +385,21 @@ impl<'a> Run<'a> {
             self.notes.push(format!(
                 "cpsv left {} of {} cells ({} voxels) undecided; they count as outside",
                 stats.undecided_cells, stats.cells, stats.undecided_voxels
+            ));
+        }
+    }
+
+    /// Notes on what the exposure test found beside openings: boundary edges along cracks,
+    /// through which it looked, and quads that showed in part, cut down to what does not.
+    fn note_exposure(&mut self, cracks: usize, cut_quads: usize) {
+        if cracks > 0 {
+            self.notes.push(format!(
+                "{cracks} boundary edges run along cracks narrower than a pixel between parts: what shows through them counts as seen"
+            ));
+        }
+        if cut_quads > 0 {
+            self.notes.push(format!(
+                "{cut_quads} quads showed through an opening in part and were cut down to the rest"
             ));
         }
     }

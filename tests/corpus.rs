@@ -1,5 +1,6 @@
 //! The shared corpus at the default settings: closed meshes show no false pixel from any view,
-//! open ones none from views that are not below them. Coverage is printed, for the record.
+//! open ones none from views that are not below them, judged from 1,024 directions as well as
+//! the cook's own 64. Coverage is printed, for the record.
 
 mod common;
 use occluder_cook::cook::cook;
@@ -9,21 +10,26 @@ use std::path::Path;
 
 const CLOSED: [&str; 5] = ["spot.obj", "cow.obj", "fandisk.obj", "homer.obj", "duck.glb"];
 /// Every open mesh of the corpus, with its coverage (%) at 64 views when the floor was set; the
-/// test allows a point less.
+/// test allows a point less. 2cylinder-engine's parts nearly touch along thousands of cracks,
+/// through which its inside shows: the quads that covered it went, 2.4 points with them.
 const OPEN: [(&str, f64); 12] = [
     ("teapot.obj", 19.00),
     ("sphere-with-hole.stl", 58.67),
-    ("suzanne.obj", 74.15),
-    ("kenney-building-small-a.glb", 95.51),
-    ("kenney-building-small-c.glb", 87.33),
-    ("kenney-building-garage.glb", 95.49),
-    ("bunny-holes.obj", 66.39),
-    ("monkey.glb", 73.89),
+    ("suzanne.obj", 73.99),
+    ("kenney-building-small-a.glb", 95.60),
+    ("kenney-building-small-c.glb", 87.32),
+    ("kenney-building-garage.glb", 95.43),
+    ("bunny-holes.obj", 66.71),
+    ("monkey.glb", 73.51),
     ("soup.stl", 81.63),
-    ("2cylinder-engine.glb", 56.18),
+    ("2cylinder-engine.glb", 53.77),
     ("wallhole.obj", 98.01),
     ("testscene/TestScene.gltf", 90.37),
 ];
+
+/// Views of the denser judge: a crack or a slot shows only from a few directions, which 64
+/// views miss.
+const JUDGE_VIEWS: usize = 1024;
 
 fn cook_corpus_mesh(name: &str) -> Option<Quality> {
     Some(cook_file(&common::corpus()?.join(name)).0)
@@ -46,11 +52,34 @@ fn cook_file(path: &Path) -> (Quality, occluder_cook::cook::Cooked) {
     (q, cooked)
 }
 
+/// `cooked`'s occluder judged again from [`JUDGE_VIEWS`] directions, on the CPU.
+fn judge_densely(path: &Path, cooked: &occluder_cook::cook::Cooked) -> Quality {
+    let (mut mesh, _) = load_file(path).expect("loads");
+    let topology = orient_closed_components(&mut mesh);
+    let mut settings = common::defaults().eval;
+    settings.views = JUDGE_VIEWS;
+    let judged =
+        evaluate(&mesh, &topology.boundary, &cooked.occluder.mesh(), &settings, None).expect("the CPU evaluates");
+    println!(
+        "{}: at {JUDGE_VIEWS} views, false pixels {} / {} non-below",
+        path.display(),
+        judged.false_pixels,
+        judged.false_pixels_non_below
+    );
+    judged
+}
+
 #[test]
 fn closed_meshes_have_no_false_pixels() {
     for name in CLOSED {
-        let Some(q) = cook_corpus_mesh(name) else { return };
+        let Some(dir) = common::corpus() else { return };
+        let (q, cooked) = cook_file(&dir.join(name));
         assert_eq!(q.false_pixels, 0, "{name}");
+        assert_eq!(
+            judge_densely(&dir.join(name), &cooked).false_pixels,
+            0,
+            "{name} at {JUDGE_VIEWS} views"
+        );
         assert_eq!(q.outside_samples, 0.0, "{name}");
         assert!(q.occluder_triangles <= 256, "{name}");
         assert!(q.coverage >= 0.8, "{name}: coverage {}", q.coverage);
@@ -60,8 +89,14 @@ fn closed_meshes_have_no_false_pixels() {
 #[test]
 fn open_meshes_have_no_false_pixels_from_above_and_keep_their_coverage() {
     for (name, coverage) in OPEN {
-        let Some(q) = cook_corpus_mesh(name) else { return };
+        let Some(dir) = common::corpus() else { return };
+        let (q, cooked) = cook_file(&dir.join(name));
         assert_eq!(q.false_pixels_non_below, 0, "{name}");
+        let judged = judge_densely(&dir.join(name), &cooked);
+        assert_eq!(
+            judged.false_pixels_non_below, 0,
+            "{name} at {JUDGE_VIEWS} views: {judged:?}"
+        );
         assert!(
             q.coverage * 100.0 >= coverage - 1.0,
             "{name}: coverage {:.2}% under the floor {:.2}%",

@@ -147,17 +147,20 @@ pub struct PanelReport {
     pub patch_candidates: usize,
     /// Quads rejected because they show through an opening (open meshes only).
     pub exposed: usize,
+    /// Quads that showed in part, cut down to their largest hidden rectangle.
+    pub cut: usize,
     pub kept_panels: Vec<Panel>,
 }
 
 impl PanelReport {
-    /// `found` quads, of which `unexposed` did not show through an opening, then patches up to
-    /// `candidates` panels in all.
-    pub(super) fn new(found: usize, unexposed: usize, candidates: usize, occluder: &Occluder) -> PanelReport {
+    /// `found` quads, of which `dropped` showed through an opening and `cut` showed in part,
+    /// then patches up to `candidates` panels in all.
+    pub(super) fn new(found: usize, [dropped, cut]: [usize; 2], candidates: usize, occluder: &Occluder) -> PanelReport {
         PanelReport {
             quad_candidates: found,
-            patch_candidates: candidates - unexposed,
-            exposed: found - unexposed,
+            patch_candidates: candidates - (found - dropped),
+            exposed: dropped,
+            cut,
             kept_panels: occluder.panels.clone(),
         }
     }

@@ -1,7 +1,7 @@
 //! Coverage, false pixels and outside samples, as DESIGN.md defines them.
 
-use super::proximity::SurfaceIndex;
 use crate::geom::camera::{View, fibonacci_sphere};
+use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::depth_images;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};

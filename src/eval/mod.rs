@@ -2,6 +2,5 @@
 //! outside samples, triangles.
 
 pub mod metrics;
-pub mod proximity;
 
 pub use metrics::{EvalSettings, Quality, ViewSet, evaluate, evaluate_where_it_can};

@@ -22,12 +22,21 @@ pub fn rasterize_inner(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f
     rasterize_with(view, tri, Coverage::Whole, visit);
 }
 
+/// Like [`rasterize`], but where edge k (from corner k + 1 to corner k + 2) is flagged in
+/// `eroded`, only pixels whose whole square lies on the triangle's side of it: where a crack
+/// narrower than a pixel runs along that edge, the pixel sees what lies behind.
+pub fn rasterize_eroded(view: &View, tri: &[DVec3; 3], eroded: [bool; 3], visit: impl FnMut(usize, f64)) {
+    rasterize_with(view, tri, Coverage::Eroded(eroded), visit);
+}
+
 #[derive(Clone, Copy, PartialEq)]
 enum Coverage {
     /// Pixels whose centre the triangle covers, at the centre's depth.
     Centres,
     /// Pixels wholly inside the triangle, at the farthest depth of their corners.
     Whole,
+    /// Pixel centres the triangle covers, whose squares also lie wholly inside the flagged edges.
+    Eroded([bool; 3]),
 }
 
 fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, mut visit: impl FnMut(usize, f64)) {
@@ -76,7 +85,7 @@ fn fill(
     // [lo, hi]. Most triangles of a detailed mesh cover none, so this comes first, without
     // rounding calls.
     let (inset, reach) = match coverage {
-        Coverage::Centres => (0.5, 0.5),
+        Coverage::Centres | Coverage::Eroded(_) => (0.5, 0.5),
         Coverage::Whole => (0.0, 1.0),
     };
     let pixels = |lo: f64, hi: f64| -> Option<(usize, usize)> {
@@ -104,13 +113,26 @@ fn fill(
         ]
     };
     let value = |w: [f64; 3]| w[0] * p[0].z + w[1] * p[1].z + w[2] * p[2].z;
+    // How far inside each edge a pixel centre must be, as a weight, for the pixel's square to be:
+    // across the square, the edge's function changes by half the sum of its |dx| and |dy|.
+    let insets: [f64; 3] = match coverage {
+        Coverage::Eroded(eroded) => std::array::from_fn(|k| {
+            let edge = q[(k + 2) % 3] - q[(k + 1) % 3];
+            if eroded[k] {
+                0.5 * (edge.x.abs() + edge.y.abs()) / area.abs()
+            } else {
+                0.0
+            }
+        }),
+        _ => [0.0; 3],
+    };
     for y in y0..=y1 {
         for x in x0..=x1 {
             let (x_f, y_f) = (x as f64, y as f64);
             match coverage {
-                Coverage::Centres => {
+                Coverage::Centres | Coverage::Eroded(_) => {
                     let w = weights(DVec2::new(x_f + 0.5, y_f + 0.5));
-                    if w.iter().all(|&v| v >= 0.0) {
+                    if w.iter().zip(insets).all(|(&v, inset)| v >= inset) {
                         visit(y * view.pixels + x, depth(value(w)));
                     }
                 }
@@ -180,4 +202,48 @@ pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
     let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
     rasterize_mesh(view, mesh, |i, _| mask[i / 64] |= 1 << (i % 64));
     mask
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tall triangle whose edge 0 (from corner 1 to corner 2) is a vertical line at world x =
+    /// `edge_x`, seen from the front in a 16-pixel view: the pixels drawn, plainly and eroded.
+    fn drawn(edge_x: f64, eroded: [bool; 3]) -> (View, Vec<usize>, Vec<usize>) {
+        let view = View::new(DVec3::Z, DVec3::ZERO, 1.0, 16);
+        let far = -4.0 * (edge_x - 0.5).signum();
+        let tri = [
+            DVec3::new(far, -4.0, 0.0),
+            DVec3::new(edge_x, -4.0, 0.0),
+            DVec3::new(edge_x, 4.0, 0.0),
+        ];
+        let (mut plain, mut thin) = (Vec::new(), Vec::new());
+        rasterize(&view, &tri, |i, _| plain.push(i));
+        rasterize_eroded(&view, &tri, eroded, |i, _| thin.push(i));
+        (view, plain, thin)
+    }
+
+    #[test]
+    fn an_eroded_edge_gives_up_exactly_the_pixels_whose_squares_it_crosses() {
+        let mut removed_in_all = 0;
+        for edge_x in [0.03, 0.09, -0.2, 0.51] {
+            let (view, plain, thin) = drawn(edge_x, [true, false, false]);
+            let screen_x = view.project(DVec3::new(edge_x, 0.0, 0.0)).x;
+            let removed: Vec<usize> = plain.iter().copied().filter(|i| !thin.contains(i)).collect();
+            assert!(thin.iter().all(|i| plain.contains(i)), "erosion only removes pixels");
+            removed_in_all += removed.len();
+            for i in &plain {
+                let centre = (i % 16) as f64 + 0.5;
+                assert_eq!(
+                    removed.contains(i),
+                    (centre - screen_x).abs() < 0.5,
+                    "edge at {edge_x}, pixel {i}"
+                );
+            }
+            // Edges that are not flagged keep every pixel.
+            assert_eq!(drawn(edge_x, [false; 3]).2, plain);
+        }
+        assert!(removed_in_all >= 16, "a column of pixels straddles some of the edges");
+    }
 }

@@ -14,21 +14,34 @@
 //! from some point of it, near enough. An outside camera not below a point sees it through the
 //! opening only past a point of the opening at least as high, so these cameras count only what
 //! lies no higher than the opening's highest point.
+//!
+//! A crack between parts that nearly touch is narrower than a pixel, so pixel centres rarely
+//! fall in it, yet what lies behind it shows. Along a boundary edge with another part of the
+//! surface within a pixel (but not touching), the views draw a pixel only where its whole square
+//! lies on the triangle's side: across the crack, they see what lies behind.
 
 pub mod gpu;
 
+use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
-use crate::geom::raster::{depth_images, rasterize};
+use crate::geom::proximity::SurfaceIndex;
+use crate::geom::raster::{depth_images, rasterize, rasterize_eroded};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::Grid;
 use crate::voxel::winding::WindingField;
 use glam::DVec3;
 use rayon::prelude::*;
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 
 /// Directions on the whole sphere; those not below the object are used.
 const DIRECTIONS: usize = 256;
+/// Directions on the horizon itself, the edge of those used: a slot in the side of a shape lines
+/// up with views from there, and the sphere's points come no nearer than half a row to it.
+const HORIZON_DIRECTIONS: usize = 32;
+/// Parts of the surface nearer each other than this share of the mesh's radius touch: float
+/// noise, not a crack.
+const TOUCHING: f64 = 1e-6;
 const PIXELS: usize = 256;
 
 /// Pixels per side of the tiles whose farthest depth gives a quick "hidden" answer (TILE in
@@ -43,6 +56,8 @@ const OPEN_WINDING: f64 = 0.3;
 /// Cameras in all openings, the largest openings first: each renders five or six faces of a
 /// cube map.
 const MAX_EYES: usize = 24;
+/// Most cells along a side of a panel cut down to its hidden part.
+const MAX_PART_CELLS: usize = 64;
 
 pub struct OpenViews {
     /// The orthographic views from directions above the horizon, then the cameras in the
@@ -57,6 +72,10 @@ pub struct OpenViews {
     depths: Vec<f32>,
     /// Per view, the farthest depth of each TILE × TILE tile of `depths`.
     tiles: Vec<f32>,
+    /// The width of a pixel of the orthographic views.
+    pixel: f64,
+    /// Boundary edges along a crack.
+    cracks: usize,
 }
 
 impl OpenViews {
@@ -64,9 +83,14 @@ impl OpenViews {
     /// (shaders/raster.wgsl). `boundary` is the mesh's open boundary.
     pub fn new(mesh: &Mesh, boundary: &[BoundaryEdge], gpu: Option<&Gpu>) -> Result<OpenViews, GpuError> {
         let (center, radius) = mesh.bounding_sphere();
+        let horizon = (0..HORIZON_DIRECTIONS).map(|k| {
+            let angle = std::f64::consts::TAU * k as f64 / HORIZON_DIRECTIONS as f64;
+            DVec3::new(angle.cos(), 0.0, angle.sin())
+        });
         let mut views: Vec<View> = fibonacci_sphere(DIRECTIONS)
             .into_iter()
             .filter(|d| d.y >= 0.0)
+            .chain(horizon)
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
         let sky_views = views.len();
@@ -83,11 +107,30 @@ impl OpenViews {
                 horizons.push(horizon);
             }
         }
+        let pixel = 2.0 * radius / PIXELS as f64;
+        let cracked = crack_edges(mesh, boundary, pixel, TOUCHING * radius);
+        // Triangles along a crack are drawn eroded on the CPU, over the rest.
+        let uncracked = (!cracked.is_empty()).then(|| Mesh {
+            positions: mesh.positions.clone(),
+            triangles: (0..mesh.triangles.len())
+                .filter(|t| !cracked.contains_key(t))
+                .map(|t| mesh.triangles[t])
+                .collect(),
+        });
         // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
         // openings meanwhile.
         let (sky, eyes) = views.split_at(sky_views);
-        let (sky_images, eye_images) = rayon::join(|| depth_images(sky, mesh, gpu), || depth_images(eyes, mesh, None));
+        let (sky_images, eye_images) = rayon::join(
+            || depth_images(sky, uncracked.as_ref().unwrap_or(mesh), gpu),
+            || depth_images(eyes, mesh, None),
+        );
         let mut images = sky_images?;
+        images.par_iter_mut().zip(sky).for_each(|(image, view)| {
+            for (&t, &eroded) in &cracked {
+                let triangle = mesh.corners(t).map(|p| p.as_dvec3());
+                rasterize_eroded(view, &triangle, eroded, |i, d| image[i] = image[i].min(d as f32));
+            }
+        });
         images.extend(eye_images?);
         // One after another, as the GPU takes them.
         let mut depths = vec![0f32; images.len() * PIXELS * PIXELS];
@@ -106,7 +149,15 @@ impl OpenViews {
             horizons,
             depths,
             tiles,
+            pixel,
+            cracks: cracked.values().flatten().filter(|&&e| e).count(),
         })
+    }
+
+    /// How many boundary edges run along a crack, where another part of the surface lies nearer
+    /// than a pixel without touching.
+    pub fn cracks(&self) -> usize {
+        self.cracks
     }
 
     /// For a camera in an opening, the height up to which it counts what it sees.
@@ -218,34 +269,84 @@ impl OpenViews {
     /// original. With `closed_convex` (a box), faces turned away from a view are skipped: the
     /// faces turned towards it cover them.
     pub fn hides(&self, triangles: &[[DVec3; 3]], closed_convex: bool) -> bool {
-        (0..self.views.len()).all(|v| {
-            let view = &self.views[v];
-            // Cameras in openings are perspective: a face turned away from their axis may
-            // still face them.
-            let skip_turned_away = closed_convex && self.horizon(v).is_none();
-            triangles
-                .iter()
-                .filter(|t| !skip_turned_away || (t[1] - t[0]).cross(t[2] - t[0]).dot(view.dir) > 0.0)
-                .all(|t| self.hides_triangle(v, t))
-        })
+        (0..self.views.len()).all(|v| self.hidden_from(v, triangles, closed_convex))
+    }
+
+    /// Whether view `v` sees no pixel of these triangles in front of the original.
+    fn hidden_from(&self, v: usize, triangles: &[[DVec3; 3]], closed_convex: bool) -> bool {
+        let view = &self.views[v];
+        // Cameras in openings are perspective: a face turned away from their axis may still
+        // face them.
+        let skip_turned_away = closed_convex && self.horizon(v).is_none();
+        triangles
+            .iter()
+            .filter(|t| !skip_turned_away || (t[1] - t[0]).cross(t[2] - t[0]).dot(view.dir) > 0.0)
+            .all(|t| self.hides_triangle(v, t))
+    }
+
+    /// The largest rectangle of `panel` that no view sees: the panel cut into cells about one
+    /// pixel of these views wide, a cell left out where a view sees a point of it. `None` when
+    /// no rectangle of at least 2 × 2 cells is hidden, or the rectangle still shows.
+    pub fn hidden_part(&self, panel: &Panel) -> Option<Panel> {
+        let corner = |i: usize| DVec3::from_array(panel.corners[i]);
+        let (origin, u, v) = (corner(0), corner(1) - corner(0), corner(3) - corner(0));
+        let cells = |side: DVec3| ((side.length() / self.pixel).ceil() as usize).clamp(1, MAX_PART_CELLS);
+        let (nu, nv) = (cells(u), cells(v));
+        // The cells a point lies in, both where it lies on the line between two.
+        let cells_at = |p: DVec3| {
+            let d = p - origin;
+            let (a, b) = (
+                d.dot(u) / u.length_squared() * nu as f64,
+                d.dot(v) / v.length_squared() * nv as f64,
+            );
+            let around = |x: f64, n: usize| {
+                let cell = |x: f64| (x.floor().max(0.0) as usize).min(n - 1);
+                [cell(x - 1e-6), cell(x + 1e-6)]
+            };
+            let (ia, ib) = (around(a, nu), around(b, nv));
+            ia.into_iter().flat_map(move |i| ib.map(|j| i * nv + j))
+        };
+        // View after view, until too few cells are left to hold a rectangle of 2 × 2.
+        let (mut hidden, mut left) = (vec![true; nu * nv], nu * nv);
+        for view in 0..self.views.len() {
+            for triangle in panel.triangles() {
+                if self.horizon(view).is_some() || !self.hidden_by_tiles(view, &triangle) {
+                    self.visit_seen(view, &triangle, |p| {
+                        for cell in cells_at(p) {
+                            left -= usize::from(std::mem::replace(&mut hidden[cell], false));
+                        }
+                    });
+                }
+            }
+            if left < 4 {
+                return None;
+            }
+        }
+        let part = rectangle::largest(&hidden, nu, nv, 2)?;
+        let at = |i: usize, j: usize| origin + u * (i as f64 / nu as f64) + v * (j as f64 / nv as f64);
+        let [i, j] = [part.u, part.v];
+        let corners = [at(i[0], j[0]), at(i[1], j[0]), at(i[1], j[1]), at(i[0], j[1])];
+        let part = Panel {
+            shape: panel.shape,
+            corners: corners.map(|p| p.to_array()),
+        };
+        // Cut along pixel centres, the part is checked again as a whole.
+        self.hides(&part.triangles(), false).then_some(part)
     }
 
     fn hides_triangle(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
-        let (view, depth) = (
-            &self.views[v],
-            &self.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS],
-        );
-        let tolerance = view.depth_tolerance();
-        if let Some(horizon) = self.horizon(v) {
-            // Only what lies no higher than the opening counts.
-            let mut hidden = true;
-            rasterize(view, triangle, |i, d| {
-                hidden &= d >= f64::from(depth[i]) - tolerance || view.unproject(i, d).y > horizon;
-            });
-            return hidden;
+        if self.horizon(v).is_none() && self.hidden_by_tiles(v, triangle) {
+            return true;
         }
-        // Quick answer: the nearest corner lies behind the farthest depth of every tile under
-        // the triangle's screen bounds.
+        let mut hidden = true;
+        self.visit_seen(v, triangle, |_| hidden = false);
+        hidden
+    }
+
+    /// Quick answer for an orthographic view: the triangle's nearest corner lies behind the
+    /// farthest depth of every tile under its screen bounds.
+    fn hidden_by_tiles(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
+        let view = &self.views[v];
         let corners = triangle.map(|p| view.project(p));
         let lo = corners[0].min(corners[1]).min(corners[2]);
         let hi = corners[0].max(corners[1]).max(corners[2]);
@@ -260,12 +361,25 @@ impl OpenViews {
             .map(|t| self.tiles[v * tiles * tiles + t])
             .fold(0f32, f32::max);
         let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
-        if on_screen && lo.z >= f64::from(farthest) - tolerance {
-            return true;
-        }
-        let mut hidden = true;
-        rasterize(view, triangle, |i, d| hidden &= d >= f64::from(depth[i]) - tolerance);
-        hidden
+        on_screen && lo.z >= f64::from(farthest) - view.depth_tolerance()
+    }
+
+    /// Calls `seen` with the point of `triangle` at each pixel where view `v` sees it in front
+    /// of the original. A camera in an opening counts only what lies no higher than the opening.
+    fn visit_seen(&self, v: usize, triangle: &[DVec3; 3], mut seen: impl FnMut(DVec3)) {
+        let (view, depth) = (
+            &self.views[v],
+            &self.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS],
+        );
+        let (tolerance, horizon) = (view.depth_tolerance(), self.horizon(v));
+        rasterize(view, triangle, |i, d| {
+            if d < f64::from(depth[i]) - tolerance {
+                let p = view.unproject(i, d);
+                if horizon.is_none_or(|h| p.y <= h) {
+                    seen(p);
+                }
+            }
+        });
     }
 }
 
@@ -380,4 +494,126 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(DVec3, f64)> {
         }
     }
     eyes
+}
+
+/// Per triangle with a boundary edge along a crack, which of its edges (edge k joins corners
+/// k + 1 and k + 2) do: another part of the surface, one that shares neither of the edge's
+/// corners, lies within `width` of a point of the edge but farther than `touching`.
+fn crack_edges(mesh: &Mesh, boundary: &[BoundaryEdge], width: f64, touching: f64) -> BTreeMap<usize, [bool; 3]> {
+    let index = SurfaceIndex::new(mesh, width);
+    let position = |v: u32| mesh.positions[v as usize].as_dvec3();
+    let cracks: HashSet<(u32, u32)> = boundary
+        .par_iter()
+        .filter(|e| {
+            let (a, b) = (position(e.a), position(e.b));
+            [0.25, 0.5, 0.75]
+                .into_iter()
+                .any(|s| index.near_apart(a.lerp(b, s), touching, [e.a, e.b]))
+        })
+        .map(|e| (e.a.min(e.b), e.a.max(e.b)))
+        .collect();
+    let mut cracked = BTreeMap::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let edges: [bool; 3] = std::array::from_fn(|k| {
+            let (a, b) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
+            cracks.contains(&(a.min(b), a.max(b)))
+        });
+        if edges.contains(&true) {
+            cracked.insert(t, edges);
+        }
+    }
+    cracked
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::topology::orient_closed_components;
+    use crate::occluder::{BOX_FACES, Shape};
+    use glam::Vec3;
+
+    /// A unit cube cut down the middle (x = 0.5) into two boxes `gap` apart, each open towards
+    /// the other: with a gap, a crack runs through the cube from top to bottom.
+    fn split_cube(gap: f32) -> Mesh {
+        let mut mesh = Mesh::default();
+        for (lo, hi, open_face) in [(0.0, 0.5 - gap / 2.0, 1), (0.5 + gap / 2.0, 1.0, 0)] {
+            let corner = |i: usize| {
+                let pick = |bit: usize, a: f32, b: f32| if i & bit == 0 { a } else { b };
+                Vec3::new(pick(1, lo, hi), pick(2, 0.0, 1.0), pick(4, 0.0, 1.0))
+            };
+            let base = mesh.positions.len() as u32;
+            mesh.positions.extend((0..8).map(corner));
+            for (_, q) in BOX_FACES.iter().enumerate().filter(|&(f, _)| f != open_face) {
+                let q = q.map(|i| base + i as u32);
+                mesh.triangles.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
+            }
+        }
+        mesh
+    }
+
+    fn views_of(mut mesh: Mesh) -> OpenViews {
+        let topology = orient_closed_components(&mut mesh);
+        OpenViews::new(&mesh, &topology.boundary, None).expect("the CPU draws")
+    }
+
+    fn panel(corners: [[f64; 3]; 4]) -> Panel {
+        Panel {
+            shape: Shape::Quads,
+            corners,
+        }
+    }
+
+    /// Just under the cube's top, beside the middle.
+    fn under_the_top() -> Panel {
+        panel([[0.45, 0.9, 0.3], [0.499, 0.9, 0.3], [0.499, 0.9, 0.7], [0.45, 0.9, 0.7]])
+    }
+
+    #[test]
+    fn what_lies_behind_a_hairline_crack_shows() {
+        // A crack a hundred-thousandth of the cube wide, far narrower than a pixel.
+        let cracked = views_of(split_cube(1e-5));
+        assert!(cracked.cracks() > 0);
+        assert!(!cracked.hides(&under_the_top().triangles(), false));
+        // From straight above, pixel centres would all but miss it: the top's pixels along the
+        // crack see past the top.
+        let above = (0..cracked.sky_views)
+            .max_by(|&a, &b| cracked.views[a].dir.y.total_cmp(&cracked.views[b].dir.y))
+            .expect("views from above");
+        let view = &cracked.views[above];
+        let top = view.project(DVec3::new(0.5, 1.0, 0.5)).z;
+        let image = &cracked.depths[above * PIXELS * PIXELS..(above + 1) * PIXELS * PIXELS];
+        let over_the_top = |i: &usize| {
+            let p = view.unproject(*i, top);
+            (0.05..0.95).contains(&p.x) && (0.05..0.95).contains(&p.z)
+        };
+        let (past_the_top, on_top): (Vec<usize>, Vec<usize>) = (0..image.len())
+            .filter(over_the_top)
+            .partition(|&i| f64::from(image[i]) > top + 0.1);
+        let (past_the_top, on_top) = (past_the_top.len(), on_top.len());
+        assert!(
+            on_top > 10_000 && past_the_top > 100,
+            "{on_top} pixels on the top, {past_the_top} past it"
+        );
+        // Where the halves touch, the cube is closed: nothing inside shows.
+        let closed = views_of(split_cube(0.0));
+        assert_eq!(closed.cracks(), 0);
+        assert!(closed.hides(&under_the_top().triangles(), false));
+    }
+
+    #[test]
+    fn a_panel_that_shows_in_part_is_cut_down_to_the_rest() {
+        let views = views_of(split_cube(0.0));
+        // Half inside the closed cube, half beside it, where every side view sees it.
+        let across = panel([[0.2, 0.2, 0.5], [1.8, 0.2, 0.5], [1.8, 0.8, 0.5], [0.2, 0.8, 0.5]]);
+        assert!(!views.hides(&across.triangles(), false));
+        let part = views.hidden_part(&across).expect("the half inside is hidden");
+        assert!(views.hides(&part.triangles(), false));
+        let xs = part.corners.map(|c| c[0]);
+        let (lo, hi) = (
+            xs.iter().copied().fold(f64::INFINITY, f64::min),
+            xs.iter().copied().fold(0.0, f64::max),
+        );
+        assert!(hi <= 1.0 && lo <= 0.25 && hi >= 0.9, "kept x from {lo} to {hi}");
+        assert!(part.area() >= 0.8 * 0.8 * 0.6, "kept {}", part.area());
+    }
 }

@@ -1,5 +1,6 @@
-//! Whether a point lies on a mesh's surface, within a tolerance: triangles bucketed in a
-//! uniform grid, exact point–triangle distances in the buckets.
+//! Whether a point lies on a mesh's surface, or near a part of it that it does not touch, within
+//! a tolerance: triangles bucketed in a uniform grid, exact point–triangle distances in the
+//! buckets.
 
 use crate::mesh::Mesh;
 use glam::DVec3;
@@ -76,11 +77,26 @@ impl<'a> SurfaceIndex<'a> {
 
     /// Whether `p` is within the tolerance of some triangle.
     pub fn on_surface(&self, p: DVec3) -> bool {
+        self.any_near(p, |_, distance| distance <= self.tolerance)
+    }
+
+    /// Whether a triangle with neither of `corners` as a corner lies within the tolerance of
+    /// `p`, but farther than `touching`: a part of the surface near `p` that does not touch it.
+    pub fn near_apart(&self, p: DVec3, touching: f64, corners: [u32; 2]) -> bool {
+        self.any_near(p, |t, distance| {
+            distance <= self.tolerance
+                && distance > touching
+                && !self.mesh.triangles[t].iter().any(|v| corners.contains(v))
+        })
+    }
+
+    /// Whether `accept(triangle, its distance from p)` holds for a triangle in `p`'s bucket.
+    fn any_near(&self, p: DVec3, accept: impl Fn(usize, f64) -> bool) -> bool {
         let [rx, ry, rz] = self.bucket_range(p, p);
         let b = self.bucket(rx.start, ry.start, rz.start);
         self.triangles[self.offsets[b]..self.offsets[b + 1]].iter().any(|&t| {
             let [a, b, c] = self.mesh.corners(t as usize).map(|v| v.as_dvec3());
-            closest_on_triangle(p, a, b, c).distance(p) <= self.tolerance
+            accept(t as usize, closest_on_triangle(p, a, b, c).distance(p))
         })
     }
 }

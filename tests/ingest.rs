@@ -196,3 +196,49 @@ fn obj_lines_continued_with_a_backslash_and_crlf_are_joined() {
     let (mesh, _) = load_bytes(text.as_bytes(), Format::Obj, None).unwrap();
     assert_eq!(mesh.triangles.len(), 2);
 }
+
+/// gltf-json 1.4's validator indexes the accessor a primitive's POSITION names before checking
+/// it (mesh.rs): a GLB with a few bytes changed there is refused in one line, never a panic.
+#[test]
+fn a_glb_whose_position_names_no_accessor_is_refused_in_one_line() {
+    let cube = common::cuboid(Vec3::ZERO, Vec3::ONE, &[]);
+    let part = glb::Part {
+        name: "cube",
+        mesh: &cube,
+        double_sided: false,
+    };
+    let mut bytes = glb::write(&[part], serde_json::json!({}));
+    let position = bytes
+        .windows(12)
+        .position(|w| w == b"\"POSITION\":0")
+        .expect("the GLB names its positions");
+    bytes[position + 11] = b'9';
+    for read in [
+        load_bytes(&bytes, Format::Gltf, None).map(|_| ()),
+        glb::read_parts(&bytes).map(|_| ()),
+    ] {
+        let error = read.expect_err("no accessor 9").to_string();
+        assert!(error.starts_with("malformed glTF file"), "{error}");
+        assert!(!error.contains('\n') && error.chars().count() <= 200, "{error}");
+    }
+}
+
+/// A file that fails validation in a hundred places gets its first problem and how many more,
+/// a required extension first: it is why the accessors have no data.
+#[test]
+fn a_draco_gltf_is_refused_in_one_short_line_naming_the_extension() {
+    let Some(dir) = common::corpus() else { return };
+    let error = load_file(&dir.join("formats/2cylinder-engine-draco.gltf"))
+        .expect_err("draco is not decoded")
+        .to_string();
+    println!("{error}");
+    assert!(
+        error.chars().count() <= 200,
+        "{} characters: {error}",
+        error.chars().count()
+    );
+    assert!(
+        error.contains("KHR_draco_mesh_compression") && error.contains("more problems"),
+        "{error}"
+    );
+}

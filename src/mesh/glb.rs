@@ -122,7 +122,8 @@ pub fn write_scene(nodes: &[Node]) -> Vec<u8> {
 /// The parts of a GLB this module wrote, by material name: (name, mesh), in order. Used to
 /// read cached occluders back.
 pub fn read_parts(bytes: &[u8]) -> Result<Vec<(String, Mesh)>, super::IngestError> {
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| super::IngestError::malformed("glTF", e.to_string()))?;
+    let gltf = super::gltf_in::parse(bytes)?
+        .map_err(|e| super::IngestError::malformed("glTF", super::gltf_in::first_problem(&e)))?;
     // Our GLBs keep everything in the one binary chunk.
     let blob = gltf.blob.as_deref();
     let mut parts = Vec::new();

@@ -9,7 +9,7 @@ use std::path::Path;
 const FORMAT: &str = "glTF";
 
 pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
-    match gltf::Gltf::from_slice(bytes) {
+    match parse(bytes)? {
         Ok(gltf) => read_scene(&gltf, base_dir),
         Err(invalid) => {
             // Say what is really wrong where the geometry can still be read (infinite
@@ -22,9 +22,34 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestErro
                 Some(Ok(Err(
                     e @ (IngestError::NonFinite(..) | IngestError::IndexOutOfRange { .. } | IngestError::NodeCycle(_)),
                 ))) => e,
-                _ => IngestError::malformed(FORMAT, invalid.to_string()),
+                _ => IngestError::malformed(FORMAT, first_problem(&invalid)),
             })
         }
+    }
+}
+
+/// The document parsed and validated. The validator indexes arrays a malformed file declares,
+/// and may panic on one: that is an error in the file, not a crash.
+pub(super) fn parse(bytes: &[u8]) -> Result<Result<gltf::Gltf, gltf::Error>, IngestError> {
+    std::panic::catch_unwind(|| gltf::Gltf::from_slice(bytes))
+        .map_err(|_| IngestError::malformed(FORMAT, "an index or count in the document points outside it"))
+}
+
+/// A validation failure as its first problem and how many more there are. A required extension
+/// we cannot read comes first: it is why the rest fails (accessors with no data, for one).
+pub(super) fn first_problem(error: &gltf::Error) -> String {
+    let gltf::Error::Validation(problems) = error else {
+        return error.to_string();
+    };
+    let required = problems
+        .iter()
+        .find(|(path, _)| path.as_str().starts_with("extensionsRequired"));
+    match required.or(problems.first()) {
+        Some((path, problem)) if problems.len() > 1 => {
+            format!("{path}: {problem} (and {} more problems)", problems.len() - 1)
+        }
+        Some((path, problem)) => format!("{path}: {problem}"),
+        None => error.to_string(),
     }
 }
 
@@ -38,7 +63,7 @@ fn read_scene(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<RawMesh, Ing
 /// A glTF scene as a level: each mesh once, in its own space, with its name, and each node that
 /// places a mesh as (mesh index, world transform).
 pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<Instances, IngestError> {
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| IngestError::malformed(FORMAT, e.to_string()))?;
+    let gltf = parse(bytes)?.map_err(|e| IngestError::malformed(FORMAT, first_problem(&e)))?;
     let buffers = load_buffers(&gltf, base_dir)?;
     let mut placements = Vec::new();
     walk_scene(&gltf, &mut |mesh, world| {

@@ -76,12 +76,18 @@ pub enum IngestError {
     Empty(String),
 }
 
+/// Longest message a malformed file gets: errors are one line of at most 200 characters.
+const MAX_MESSAGE: usize = 160;
+
 impl IngestError {
+    /// A parser's complaint, on one line and cut to [`MAX_MESSAGE`] characters.
     pub(crate) fn malformed(format: &'static str, message: impl Into<String>) -> Self {
-        IngestError::Malformed {
-            format,
-            message: message.into(),
-        }
+        let message = message.into().replace(['\n', '\r'], " ");
+        let message = match message.char_indices().nth(MAX_MESSAGE) {
+            Some((cut, _)) => format!("{}…", &message[..cut]),
+            None => message,
+        };
+        IngestError::Malformed { format, message }
     }
 }
 

@@ -242,3 +242,19 @@ fn a_draco_gltf_is_refused_in_one_short_line_naming_the_extension() {
         "{error}"
     );
 }
+
+/// A required extension that touches only textures (EXT_texture_webp here) blocks nothing: the
+/// geometry reads, and the warnings name what was ignored. One that touches geometry still fails.
+#[test]
+fn a_required_texture_extension_does_not_block_the_geometry() {
+    let Some(dir) = common::corpus() else { return };
+    let (with_webp, stats) = load_file(&dir.join("formats/duck-webp-required.glb")).expect("the geometry reads");
+    let (plain, _) = load_file(&dir.join("duck.glb")).expect("duck loads");
+    assert_eq!(with_webp.triangles.len(), plain.triangles.len());
+    assert!(
+        stats.warnings.iter().any(|w| w.contains("ignored EXT_texture_webp")),
+        "{:?}",
+        stats.warnings
+    );
+    assert!(load_file(&dir.join("formats/2cylinder-engine-draco.gltf")).is_err());
+}

@@ -9,23 +9,67 @@ use std::path::Path;
 const FORMAT: &str = "glTF";
 
 pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
-    match parse(bytes)? {
-        Ok(gltf) => read_scene(&gltf, base_dir),
-        Err(invalid) => {
-            // Say what is really wrong where the geometry can still be read (infinite
-            // coordinates make min/max invalid, for one); the reader may panic on an invalid
-            // document, so it runs guarded.
-            let lenient = gltf::Gltf::from_slice_without_validation(bytes)
-                .ok()
-                .map(|gltf| std::panic::catch_unwind(|| read_scene(&gltf, base_dir).and_then(super::weld)));
-            Err(match lenient {
-                Some(Ok(Err(
-                    e @ (IngestError::NonFinite(..) | IngestError::IndexOutOfRange { .. } | IngestError::NodeCycle(_)),
-                ))) => e,
-                _ => IngestError::malformed(FORMAT, first_problem(&invalid)),
-            })
+    let invalid = match parse(bytes)? {
+        Ok(gltf) => return read_scene(&gltf, base_dir),
+        Err(invalid) => invalid,
+    };
+    // The reader may panic on an invalid document, so it runs guarded.
+    let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
+    let read_guarded = |gltf: &gltf::Gltf| std::panic::catch_unwind(|| read_scene(gltf, base_dir)).ok();
+    if let Some(gltf) = &lenient
+        && let Some(ignored) = only_looks_are_invalid(&invalid, gltf)
+        && let Some(read) = read_guarded(gltf)
+    {
+        let mut raw = read?;
+        raw.warnings.push(format!(
+            "ignored {}: it touches only textures or materials, which an occluder does not use",
+            ignored.join(", ")
+        ));
+        return Ok(raw);
+    }
+    // Say what is really wrong where the geometry can still be read (infinite coordinates make
+    // min/max invalid, for one).
+    let geometry = lenient
+        .as_ref()
+        .and_then(read_guarded)
+        .map(|read| read.and_then(super::weld));
+    Err(match geometry {
+        Some(Err(
+            e @ (IngestError::NonFinite(..) | IngestError::IndexOutOfRange { .. } | IngestError::NodeCycle(_)),
+        )) => e,
+        _ => IngestError::malformed(FORMAT, first_problem(&invalid)),
+    })
+}
+
+/// Where every problem lies in textures, images, samplers or materials, or is a required
+/// extension that touches only those, the required extensions it names: the geometry reads as
+/// if they were absent.
+fn only_looks_are_invalid(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<Vec<String>> {
+    let gltf::Error::Validation(problems) = invalid else {
+        return None;
+    };
+    let required: Vec<&str> = gltf.extensions_required().collect();
+    let mut ignored = Vec::new();
+    for (path, _) in problems {
+        let path = path.as_str();
+        // "extensionsRequired[0] = \"NAME\"".
+        if let Some((index, _)) = path
+            .strip_prefix("extensionsRequired[")
+            .and_then(|rest| rest.split_once(']'))
+        {
+            let name = required.get(index.parse::<usize>().ok()?)?;
+            if !(name.contains("_texture_") || name.contains("_materials_")) {
+                return None;
+            }
+            ignored.push(name.to_string());
+        } else if !["textures", "images", "samplers", "materials"]
+            .iter()
+            .any(|looks| path.starts_with(looks))
+        {
+            return None;
         }
     }
+    (!ignored.is_empty()).then_some(ignored)
 }
 
 /// The document parsed and validated. The validator indexes arrays a malformed file declares,
@@ -63,7 +107,20 @@ fn read_scene(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<RawMesh, Ing
 /// A glTF scene as a level: each mesh once, in its own space, with its name, and each node that
 /// places a mesh as (mesh index, world transform).
 pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<Instances, IngestError> {
-    let gltf = parse(bytes)?.map_err(|e| IngestError::malformed(FORMAT, first_problem(&e)))?;
+    let gltf = match parse(bytes)? {
+        Ok(gltf) => gltf,
+        Err(invalid) => {
+            // As in `read`: only looks that are invalid do not block the geometry.
+            let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
+            match lenient.and_then(|gltf| Some((only_looks_are_invalid(&invalid, &gltf)?, gltf))) {
+                Some((ignored, gltf)) => {
+                    tracing::warn!("ignored {}: it touches only textures or materials", ignored.join(", "));
+                    gltf
+                }
+                None => return Err(IngestError::malformed(FORMAT, first_problem(&invalid))),
+            }
+        }
+    };
     let buffers = load_buffers(&gltf, base_dir)?;
     let mut placements = Vec::new();
     walk_scene(&gltf, &mut |mesh, world| {

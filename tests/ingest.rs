@@ -241,6 +241,10 @@ fn a_draco_gltf_is_refused_in_one_short_line_naming_the_extension() {
         error.contains("KHR_draco_mesh_compression") && error.contains("more problems"),
         "{error}"
     );
+    assert!(
+        error.contains("gltf-transform decompress"),
+        "says how to convert it: {error}"
+    );
 }
 
 /// A required extension that touches only textures (EXT_texture_webp here) blocks nothing: the

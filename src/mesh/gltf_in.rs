@@ -7,6 +7,8 @@ use gltf::mesh::Mode;
 use std::path::Path;
 
 const FORMAT: &str = "glTF";
+/// Compressed geometry with no dependable Rust decoder; gltf-transform writes it out plain.
+const DRACO: &str = "KHR_draco_mesh_compression";
 
 pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
     let invalid = match parse(bytes)? {
@@ -88,12 +90,16 @@ pub(super) fn first_problem(error: &gltf::Error) -> String {
     let required = problems
         .iter()
         .find(|(path, _)| path.as_str().starts_with("extensionsRequired"));
-    match required.or(problems.first()) {
-        Some((path, problem)) if problems.len() > 1 => {
-            format!("{path}: {problem} (and {} more problems)", problems.len() - 1)
-        }
-        Some((path, problem)) => format!("{path}: {problem}"),
-        None => error.to_string(),
+    let Some((path, problem)) = required.or(problems.first()) else {
+        return error.to_string();
+    };
+    let first = match path.as_str().contains(DRACO) {
+        true => format!("requires {DRACO}, which is not decoded: run `gltf-transform decompress` on it first"),
+        false => format!("{path}: {problem}"),
+    };
+    match problems.len() {
+        1 => first,
+        n => format!("{first} (and {} more problems)", n - 1),
     }
 }
 

@@ -19,7 +19,7 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestErro
     let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
     let read_guarded = |gltf: &gltf::Gltf| std::panic::catch_unwind(|| read_scene(gltf, base_dir)).ok();
     if let Some(gltf) = &lenient
-        && let Some(ignored) = only_looks_are_invalid(&invalid, gltf)
+        && let Some(ignored) = only_appearance_is_invalid(&invalid, gltf)
         && let Some(read) = read_guarded(gltf)
     {
         let mut raw = read?;
@@ -46,7 +46,7 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestErro
 /// Where every problem lies in textures, images, samplers or materials, or is a required
 /// extension that touches only those, the required extensions it names: the geometry reads as
 /// if they were absent.
-fn only_looks_are_invalid(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<Vec<String>> {
+fn only_appearance_is_invalid(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<Vec<String>> {
     let gltf::Error::Validation(problems) = invalid else {
         return None;
     };
@@ -66,7 +66,7 @@ fn only_looks_are_invalid(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<Ve
             ignored.push(name.to_string());
         } else if !["textures", "images", "samplers", "materials"]
             .iter()
-            .any(|looks| path.starts_with(looks))
+            .any(|appearance| path.starts_with(appearance))
         {
             return None;
         }
@@ -116,9 +116,9 @@ pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<Instances
     let gltf = match parse(bytes)? {
         Ok(gltf) => gltf,
         Err(invalid) => {
-            // As in `read`: only looks that are invalid do not block the geometry.
+            // As in `read`: an invalid appearance does not block the geometry.
             let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
-            match lenient.and_then(|gltf| Some((only_looks_are_invalid(&invalid, &gltf)?, gltf))) {
+            match lenient.and_then(|gltf| Some((only_appearance_is_invalid(&invalid, &gltf)?, gltf))) {
                 Some((ignored, gltf)) => {
                     tracing::warn!("ignored {}: it touches only textures or materials", ignored.join(", "));
                     gltf

@@ -60,8 +60,8 @@ const MAX_EYES: usize = 24;
 const MAX_PART_CELLS: usize = 64;
 
 pub struct OpenViews {
-    /// The orthographic views from directions above the horizon, then the cameras in the
-    /// openings.
+    /// The orthographic views from directions above the horizon and on it, then the cameras in
+    /// the openings.
     views: Vec<View>,
     /// How many of `views` are orthographic.
     sky_views: usize,

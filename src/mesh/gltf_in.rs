@@ -19,14 +19,11 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestErro
     let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
     let read_guarded = |gltf: &gltf::Gltf| std::panic::catch_unwind(|| read_scene(gltf, base_dir)).ok();
     if let Some(gltf) = &lenient
-        && let Some(ignored) = only_appearance_is_invalid(&invalid, gltf)
+        && let Some(warning) = appearance_ignored(&invalid, gltf)
         && let Some(read) = read_guarded(gltf)
     {
         let mut raw = read?;
-        raw.warnings.push(format!(
-            "ignored {}: it touches only textures or materials, which an occluder does not use",
-            ignored.join(", ")
-        ));
+        raw.warnings.push(warning);
         return Ok(raw);
     }
     // Say what is really wrong where the geometry can still be read (infinite coordinates make
@@ -43,10 +40,10 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestErro
     })
 }
 
-/// Where every problem lies in textures, images, samplers or materials, or is a required
-/// extension that touches only those, the required extensions it names: the geometry reads as
-/// if they were absent.
-fn only_appearance_is_invalid(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<Vec<String>> {
+/// Where every problem of `gltf` (its unvalidated document) lies in textures, images, samplers
+/// or materials, or is a required extension that touches only those, a warning naming those
+/// extensions: the geometry reads as if they were absent.
+fn appearance_ignored(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<String> {
     let gltf::Error::Validation(problems) = invalid else {
         return None;
     };
@@ -71,7 +68,12 @@ fn only_appearance_is_invalid(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Optio
             return None;
         }
     }
-    (!ignored.is_empty()).then_some(ignored)
+    (!ignored.is_empty()).then(|| {
+        format!(
+            "ignored {}: it touches only textures or materials, which an occluder does not use",
+            ignored.join(", ")
+        )
+    })
 }
 
 /// The document parsed and validated. The validator indexes arrays a malformed file declares,
@@ -118,9 +120,9 @@ pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<Instances
         Err(invalid) => {
             // As in `read`: an invalid appearance does not block the geometry.
             let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
-            match lenient.and_then(|gltf| Some((only_appearance_is_invalid(&invalid, &gltf)?, gltf))) {
-                Some((ignored, gltf)) => {
-                    tracing::warn!("ignored {}: it touches only textures or materials", ignored.join(", "));
+            match lenient.and_then(|gltf| Some((appearance_ignored(&invalid, &gltf)?, gltf))) {
+                Some((warning, gltf)) => {
+                    tracing::warn!("{warning}");
                     gltf
                 }
                 None => return Err(IngestError::malformed(FORMAT, first_problem(&invalid))),

@@ -310,7 +310,7 @@ impl OpenViews {
         let (mut hidden, mut left) = (vec![true; nu * nv], nu * nv);
         for view in 0..self.views.len() {
             for triangle in panel.triangles() {
-                if self.horizon(view).is_some() || !self.hidden_by_tiles(view, &triangle) {
+                if !self.hidden_by_tiles(view, &triangle) {
                     self.visit_seen(view, &triangle, |p| {
                         for cell in cells_at(p) {
                             left -= usize::from(std::mem::replace(&mut hidden[cell], false));
@@ -335,7 +335,7 @@ impl OpenViews {
     }
 
     fn hides_triangle(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
-        if self.horizon(v).is_none() && self.hidden_by_tiles(v, triangle) {
+        if self.hidden_by_tiles(v, triangle) {
             return true;
         }
         let mut hidden = true;
@@ -344,8 +344,12 @@ impl OpenViews {
     }
 
     /// Quick answer for an orthographic view: the triangle's nearest corner lies behind the
-    /// farthest depth of every tile under its screen bounds.
+    /// farthest depth of every tile under its screen bounds. Cameras in openings get no quick
+    /// answer.
     fn hidden_by_tiles(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
+        if self.horizon(v).is_some() {
+            return false;
+        }
         let view = &self.views[v];
         let corners = triangle.map(|p| view.project(p));
         let lo = corners[0].min(corners[1]).min(corners[2]);

@@ -76,15 +76,17 @@ pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<Be
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
             let start = Instant::now();
-            let cooked = load_file(path).map_err(|e| e.to_string()).and_then(|(mesh, stats)| {
-                let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
-                let cooked = cook(mesh.clone(), stats, ingest_ms, settings, true).map_err(|e| e.to_string())?;
-                let judged = (judge_views > 0)
-                    .then(|| judge(mesh, &cooked, settings, judge_views, judge_gpu.as_deref()))
-                    .transpose()
-                    .map_err(|e| e.to_string())?;
-                Ok((cooked, judged))
-            });
+            let cooked = load_file(path, &settings.cook.ingest_limits())
+                .map_err(|e| e.to_string())
+                .and_then(|(mesh, stats)| {
+                    let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
+                    let cooked = cook(mesh.clone(), stats, ingest_ms, settings, true).map_err(|e| e.to_string())?;
+                    let judged = (judge_views > 0)
+                        .then(|| judge(mesh, &cooked, settings, judge_views, judge_gpu.as_deref()))
+                        .transpose()
+                        .map_err(|e| e.to_string())?;
+                    Ok((cooked, judged))
+                });
             match cooked {
                 Ok((cooked, judged)) => {
                     let report = cooked.report;

@@ -76,6 +76,7 @@ pub struct CookSettings {
     pub cpsv_back_share: f64,
     pub cpsv_inside_faces: usize,
     pub cpsv_votes: u32,
+    pub max_placed_triangles: u64,
 }
 
 impl CookSettings {
@@ -86,6 +87,13 @@ impl CookSettings {
             back_share: self.cpsv_back_share,
             inside_faces: self.cpsv_inside_faces,
             votes: self.cpsv_votes,
+        }
+    }
+
+    /// What ingest may allocate for a mesh.
+    pub fn ingest_limits(&self) -> crate::mesh::IngestLimits {
+        crate::mesh::IngestLimits {
+            max_placed_triangles: self.max_placed_triangles,
         }
     }
 }
@@ -240,6 +248,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.cpsv_back_share", c.cpsv_back_share, 0.0, 1.0)?;
     check("cook.cpsv_inside_faces", c.cpsv_inside_faces as f64, 1.0, 6.0)?;
     check("cook.cpsv_votes", f64::from(c.cpsv_votes), 1.0, 1e6)?;
+    check("cook.max_placed_triangles", c.max_placed_triangles as f64, 1.0, 1e10)?;
     check("eval.views", e.views as f64, 1.0, 4096.0)?;
     check(
         "level.batch_max_triangles",

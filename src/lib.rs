@@ -12,6 +12,7 @@ pub mod bench;
 pub mod config;
 pub mod cook;
 pub mod eval;
+pub mod fuzz;
 pub mod geom;
 pub mod gpu;
 pub mod key;
@@ -21,3 +22,18 @@ pub mod occluder;
 pub mod service;
 pub mod store;
 pub mod voxel;
+
+/// A panic's message and where it was raised, on one line: what a caught panic reports.
+pub fn panic_text(info: &std::panic::PanicHookInfo) -> String {
+    let message = info
+        .payload()
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| info.payload().downcast_ref::<String>().cloned())
+        .unwrap_or_default();
+    let at = info
+        .location()
+        .map(|l| format!(" at {}:{}", l.file(), l.line()))
+        .unwrap_or_default();
+    format!("{message}{at}").replace('\n', " ")
+}

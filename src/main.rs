@@ -16,8 +16,10 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Cook one mesh (.glb, .gltf, .obj, .stl) into an occluder GLB.
+    /// Cook one mesh (.glb, .gltf, .fbx, .obj, .ply, .stl) into an occluder GLB.
     Cook(cli::cook::CookArgs),
+    /// Write a mesh as the cook reads it (placed, in metres with +Y up, welded) as a plain GLB.
+    Convert(cli::convert::ConvertArgs),
     /// Cook the built-in sample, a torus, with evaluation: a check that everything works.
     Demo(cli::demo::DemoArgs),
     /// Judge any occluder mesh against its original.
@@ -33,8 +35,9 @@ enum Command {
     Submit(cli::submit::SubmitArgs),
     /// Download a cooked occluder by key (exit codes as submit).
     Fetch(cli::fetch::FetchArgs),
-    /// Bake a level (a JSON manifest, or an OBJ whose groups are the instances) into a few merged
-    /// occluder batches, cooking each unique mesh once through the same sled cache as the service.
+    /// Bake a level (a JSON manifest, an OBJ whose groups are the instances, or a glTF or FBX
+    /// scene whose mesh nodes are) into a few merged occluder batches, cooking each unique mesh
+    /// once through the same sled cache as the service.
     Level(cli::level::LevelArgs),
     /// Culling test of a level's occluders (ours or any other mesh): cameras inside the level,
     /// instance boxes against a low-resolution depth buffer of the occluders, and ground truth
@@ -42,6 +45,9 @@ enum Command {
     CullEval(cli::cull_eval::CullEvalArgs),
     /// Cook and evaluate every mesh of a corpus; print a table and write JSON.
     Bench(cli::bench::BenchArgs),
+    /// Fuzz ingest: mutate the corpus's meshes and read them; any panic or slow input is a
+    /// finding, written to a folder, and the exit code is 1.
+    Fuzz(cli::fuzz::FuzzArgs),
 }
 
 fn main() {
@@ -51,12 +57,18 @@ fn main() {
         // SAFETY: no other thread exists yet.
         unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
+    let parsed = Cli::parse();
+    // The fuzzer reads thousands of broken files a second: their warnings are noise.
+    let default_level = if matches!(parsed.command, Command::Fuzz(_)) {
+        "error"
+    } else {
+        "warn"
+    };
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_level.into()))
         .without_time()
         .init();
-    let parsed = Cli::parse();
     std::panic::set_hook(Box::new(remember_panic));
     let outcome = std::panic::catch_unwind(|| run(parsed)).unwrap_or_else(|_| {
         let panic = LAST_PANIC.lock().unwrap_or_else(|e| e.into_inner()).take();
@@ -74,18 +86,8 @@ fn main() {
 static LAST_PANIC: Mutex<Option<String>> = Mutex::new(None);
 
 fn remember_panic(info: &std::panic::PanicHookInfo) {
-    let message = info
-        .payload()
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| info.payload().downcast_ref::<String>().cloned())
-        .unwrap_or_default();
     let stage = occluder_cook::cook::last_stage().unwrap_or("startup");
-    let at = info
-        .location()
-        .map(|l| format!(" at {}:{}", l.file(), l.line()))
-        .unwrap_or_default();
-    let line = format!("internal error in stage `{stage}`: {message}{at}").replace('\n', " ");
+    let line = format!("internal error in stage `{stage}`: {}", occluder_cook::panic_text(info));
     tracing::debug!("{line}");
     *LAST_PANIC.lock().unwrap_or_else(|e| e.into_inner()) = Some(line);
 }
@@ -93,6 +95,8 @@ fn remember_panic(info: &std::panic::PanicHookInfo) {
 fn run(parsed: Cli) -> Result<()> {
     match parsed.command {
         Command::Cook(args) => cli::cook::run(args),
+        Command::Convert(args) => cli::convert::run(args),
+        Command::Fuzz(args) => cli::fuzz::run(args),
         Command::Demo(args) => cli::demo::run(args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Serve(args) => cli::serve::run(args),

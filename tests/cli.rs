@@ -88,7 +88,7 @@ fn errors_are_one_line_and_name_the_problem() {
             vec!["cook", "/nonexistent/mesh.obj", "-o", out],
             "cannot read /nonexistent/mesh.obj",
         ),
-        (vec!["cook", "mesh.fbx", "-o", out], "unknown mesh format"),
+        (vec!["cook", "mesh.dae", "-o", out], "unknown mesh format"),
     ];
     for (args, expected) in cases {
         let (ok, _, stderr) = run(&args);

@@ -5,7 +5,7 @@
 mod common;
 use occluder_cook::cook::cook;
 use occluder_cook::eval::{Quality, ViewSet, evaluate};
-use occluder_cook::mesh::{load_file, topology::orient_closed_components};
+use occluder_cook::mesh::{IngestLimits, load_file, topology::orient_closed_components};
 use std::path::Path;
 
 const CLOSED: [&str; 5] = ["spot.obj", "cow.obj", "fandisk.obj", "homer.obj", "duck.glb"];
@@ -38,7 +38,7 @@ fn cook_corpus_mesh(name: &str) -> Option<Quality> {
 /// Cooks with evaluation; returns the quality and the cooked occluder.
 fn cook_file(path: &Path) -> (Quality, occluder_cook::cook::Cooked) {
     let name = path.file_name().unwrap().to_string_lossy().to_string();
-    let (mesh, stats) = load_file(path).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (mesh, stats) = load_file(path, &IngestLimits::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
     let cooked = cook(mesh, stats, 0.0, &common::defaults(), true).expect("cooks");
     let q = cooked.report.quality.clone().expect("evaluated");
     println!(
@@ -54,7 +54,7 @@ fn cook_file(path: &Path) -> (Quality, occluder_cook::cook::Cooked) {
 
 /// `cooked`'s occluder judged again from [`JUDGE_VIEWS`] directions, on the CPU.
 fn judge_densely(path: &Path, cooked: &occluder_cook::cook::Cooked) -> Quality {
-    let (mut mesh, _) = load_file(path).expect("loads");
+    let (mut mesh, _) = load_file(path, &IngestLimits::default()).expect("loads");
     let topology = orient_closed_components(&mut mesh);
     let mut settings = common::defaults().eval;
     settings.views = JUDGE_VIEWS;
@@ -127,7 +127,7 @@ fn room_gets_few_quads_and_no_false_pixels() {
     assert!(q.occluder_triangles <= 48, "{q:?}");
     assert_eq!(q.false_pixels, 0);
     assert!(q.coverage >= 0.95, "coverage {}", q.coverage);
-    let (mut mesh, _) = load_file(&path).unwrap();
+    let (mut mesh, _) = load_file(&path, &IngestLimits::default()).unwrap();
     let topology = orient_closed_components(&mut mesh);
     let mut settings = common::defaults().eval;
     settings.view_set = ViewSet::Inside;
@@ -157,7 +157,7 @@ fn pandora_as_one_mesh_gets_a_conservative_occluder() {
 #[test]
 fn inner_volume_covered_counts_the_kept_boxes_on_an_open_mesh() {
     let Some(dir) = common::corpus() else { return };
-    let (mesh, stats) = load_file(&dir.join("teapot.obj")).expect("teapot loads");
+    let (mesh, stats) = load_file(&dir.join("teapot.obj"), &IngestLimits::default()).expect("teapot loads");
     let settings = occluder_cook::config::load(None, &[("cook.refine".into(), toml::Value::Boolean(false))])
         .expect("settings load");
     let report = cook(mesh, stats, 0.0, &settings, false).expect("cooks").report;
@@ -172,4 +172,43 @@ fn inner_volume_covered_counts_the_kept_boxes_on_an_open_mesh() {
     let expected = kept_voxels / report.voxels.inner as f64;
     let covered = report.boxes.inner_volume_covered;
     assert!((covered - expected).abs() < 1e-6, "{covered} against {expected}");
+}
+
+/// Every file of the formats folder cooks with no false pixel, judged against the geometry that
+/// `convert` writes of it, or is refused in one line.
+#[test]
+fn every_format_cooks_conservatively_or_is_refused_in_one_line() {
+    let Some(dir) = common::corpus() else { return };
+    let scratch = std::env::temp_dir().join(format!("occluder-cook-formats-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch).unwrap();
+    let mut files: Vec<_> = std::fs::read_dir(dir.join("formats"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| occluder_cook::mesh::Format::from_extension(p).is_ok())
+        .collect();
+    files.sort();
+    assert!(files.len() >= 8, "{files:?}");
+    for path in files {
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
+        if let Err(e) = load_file(&path, &IngestLimits::default()) {
+            let message = e.to_string();
+            println!("{name}: refused: {message}");
+            assert!(!message.contains('\n') && message.len() <= 200, "{name}: {message}");
+            continue;
+        }
+        let (q, cooked) = cook_file(&path);
+        let converted = scratch.join(format!("{name}.glb"));
+        let (code, _, err) = common::cli(&["convert", path.to_str().unwrap(), converted.to_str().unwrap()]);
+        assert_eq!(code, 0, "{name}: {err}");
+        let judged = judge_densely(&converted, &cooked);
+        let closed = cooked.report.input.topology.boundary_edges == 0;
+        let (false_pixels, judged_false) = match closed {
+            true => (q.false_pixels, judged.false_pixels),
+            false => (q.false_pixels_non_below, judged.false_pixels_non_below),
+        };
+        assert_eq!((false_pixels, judged_false), (0, 0), "{name} (closed: {closed})");
+        // The spider's legs are thinner than a voxel: its body alone covers 37%.
+        assert!(q.coverage > 0.3, "{name}: coverage {}", q.coverage);
+    }
+    std::fs::remove_dir_all(&scratch).unwrap();
 }

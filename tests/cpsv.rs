@@ -4,7 +4,7 @@
 mod common;
 use common::{concat, cuboid, defaults, torus};
 use glam::Vec3;
-use occluder_cook::mesh::{Mesh, load_file, topology::orient_closed_components};
+use occluder_cook::mesh::{IngestLimits, Mesh, load_file, topology::orient_closed_components};
 use occluder_cook::voxel::{Grid, InsideMethod, classify, cpsv::CpsvStats, surface};
 
 /// (agreement of cpsv with winding over the voxels no triangle touches, cpsv's stats).
@@ -81,7 +81,7 @@ fn cpsv_agrees_with_winding_on_corpus_meshes() {
         ("teapot.obj", false),
         ("kenney-building-small-a.glb", false),
     ] {
-        let (mesh, _) = load_file(&dir.join(name)).expect("corpus mesh loads");
+        let (mesh, _) = load_file(&dir.join(name), &IngestLimits::default()).expect("corpus mesh loads");
         let (share, stats) = agreement(mesh, 64);
         eprintln!(
             "{name}: cpsv agrees with winding at {:.3}% of empty voxels; {stats:?}",

@@ -4,11 +4,13 @@
 
 use occluder_cook::mesh::{glb, shapes::torus};
 use occluder_cook::occluder::{Panel, Shape, WorldBox, merge::merge, panel_mesh};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
-#[test]
-fn occluder_glb_has_no_validator_errors() {
+mod common;
+
+/// The validator's node modules, or None (saying so) where node or the validator is absent.
+fn validator() -> Option<PathBuf> {
     let modules = Path::new(env!("CARGO_MANIFEST_DIR")).join(".ci/node_modules");
     if !modules.join("gltf-validator").is_dir() || Command::new("node").arg("--version").output().is_err() {
         // .ci/run installs both, so under CI their absence is a failure.
@@ -17,8 +19,42 @@ fn occluder_glb_has_no_validator_errors() {
             "gltf-validator or node not found under CI: .ci/run installs them"
         );
         eprintln!("gltf-validator or node not found (run .ci/run to install it); skipping");
-        return;
+        return None;
     }
+    Some(modules)
+}
+
+/// Fails unless the validator finds no error in the GLB at `path`.
+fn assert_valid(modules: &Path, path: &Path) {
+    let script = "const v = require('gltf-validator'); const fs = require('fs');\
+        v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[1])))\
+        .then(r => { console.log(JSON.stringify(r.issues)); process.exit(r.issues.numErrors ? 1 : 0); })\
+        .catch(e => { console.error(e); process.exit(2); });";
+    let out = Command::new("node")
+        .env("NODE_PATH", modules)
+        .args(["-e", script, path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&out.stdout);
+    println!("{}: {report}", path.display());
+    assert!(
+        out.status.success(),
+        "{}: {report} {}",
+        path.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A scratch folder of this test process.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn occluder_glb_has_no_validator_errors() {
+    let Some(modules) = validator() else { return };
     let occluder = merge(&[
         WorldBox {
             lo: [0.0; 3],
@@ -29,8 +65,7 @@ fn occluder_glb_has_no_validator_errors() {
             hi: [1.25, 1.6, 0.8],
         },
     ]);
-    let dir = std::env::temp_dir().join(format!("occluder-cook-glb-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch("glb");
     let panels = panel_mesh(&[Panel {
         shape: Shape::Quads,
         corners: [[0.0, 0.5, 0.0], [2.0, 0.5, 0.0], [2.0, 0.5, 1.0], [0.0, 0.5, 1.0]],
@@ -54,21 +89,30 @@ fn occluder_glb_has_no_validator_errors() {
             },
         ];
         std::fs::write(&path, glb::write(&parts, serde_json::json!({"key": "test"}))).unwrap();
-        let script = "const v = require('gltf-validator'); const fs = require('fs');\
-            v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[1])))\
-            .then(r => { console.log(JSON.stringify(r.issues)); process.exit(r.issues.numErrors ? 1 : 0); })\
-            .catch(e => { console.error(e); process.exit(2); });";
-        let out = Command::new("node")
-            .env("NODE_PATH", &modules)
-            .args(["-e", script, path.to_str().unwrap()])
-            .output()
-            .unwrap();
-        let report = String::from_utf8_lossy(&out.stdout);
-        println!("{name}: {report}");
-        assert!(
-            out.status.success(),
-            "{name}: {report} {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        assert_valid(&modules, &path);
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `convert` of every FBX and PLY file of the corpus writes a GLB the validator accepts.
+#[test]
+fn converted_fbx_and_ply_have_no_validator_errors() {
+    let Some(modules) = validator() else { return };
+    let Some(corpus) = common::corpus() else { return };
+    let dir = scratch("convert");
+    let mut converted = 0;
+    for entry in std::fs::read_dir(corpus.join("formats")).unwrap() {
+        let path = entry.unwrap().path();
+        if !matches!(path.extension().and_then(|e| e.to_str()), Some("fbx" | "ply")) {
+            continue;
+        }
+        let out = dir.join(path.file_name().unwrap()).with_extension("glb");
+        let (code, stdout, stderr) = common::cli(&["convert", path.to_str().unwrap(), out.to_str().unwrap()]);
+        assert_eq!(code, 0, "{}: {stderr}", path.display());
+        print!("{stdout}");
+        assert_valid(&modules, &out);
+        converted += 1;
+    }
+    assert!(converted >= 6, "only {converted} FBX and PLY files");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -8,7 +8,7 @@ use glam::Vec3;
 use occluder_cook::geom::camera::View;
 use occluder_cook::geom::raster::depth_image;
 use occluder_cook::gpu::{self, Gpu, GpuError};
-use occluder_cook::mesh::{Mesh, load_file, topology::orient_closed_components};
+use occluder_cook::mesh::{IngestLimits, Mesh, load_file, topology::orient_closed_components};
 use occluder_cook::occluder::exposure::OpenViews;
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
 use std::sync::Arc;
@@ -122,7 +122,7 @@ fn gpu_stages_match_their_cpu_twins_on_corpus_meshes() {
         "soup.stl",
         "kenney-building-small-a.glb",
     ] {
-        let (mesh, _) = load_file(&dir.join(name)).expect("corpus mesh loads");
+        let (mesh, _) = load_file(&dir.join(name), &IngestLimits::default()).expect("corpus mesh loads");
         for resolution in [64, 128] {
             let d = compare(&gpu, name, mesh.clone(), resolution);
             if d > largest.0 {
@@ -256,7 +256,12 @@ fn gpu_depth_images_match_the_cpu_rasterizer() {
     let mut meshes = vec![("torus".to_string(), torus(1.0, 0.4, 48, 24))];
     if let Some(dir) = common::corpus() {
         for name in ["bunny-holes.obj", "kenney-building-small-a.glb"] {
-            meshes.push((name.into(), load_file(&dir.join(name)).expect("corpus mesh loads").0));
+            meshes.push((
+                name.into(),
+                load_file(&dir.join(name), &IngestLimits::default())
+                    .expect("corpus mesh loads")
+                    .0,
+            ));
         }
     }
     for (name, mesh) in meshes {
@@ -340,7 +345,9 @@ fn corpus_meshes_cooked_on_the_gpu_match_the_cpu_path() {
     }
     let Some(dir) = common::corpus() else { return };
     for name in ["spot.obj", "bunny-holes.obj", "kenney-building-small-a.glb"] {
-        let mesh = load_file(&dir.join(name)).expect("corpus mesh loads").0;
+        let mesh = load_file(&dir.join(name), &IngestLimits::default())
+            .expect("corpus mesh loads")
+            .0;
         let (g, c) = (cook_on("gpu", mesh.clone()), cook_on("cpu", mesh));
         let (q, twin) = (g.report.quality.as_ref().unwrap(), c.report.quality.as_ref().unwrap());
         eprintln!(
@@ -416,7 +423,7 @@ fn cpsv_on_the_gpu_matches_its_cpu_twin() {
         ),
     ];
     if let Some(dir) = common::corpus() {
-        let (mesh, _) = load_file(&dir.join("spot.obj")).expect("corpus mesh loads");
+        let (mesh, _) = load_file(&dir.join("spot.obj"), &IngestLimits::default()).expect("corpus mesh loads");
         meshes.push(("spot.obj".into(), mesh, 64));
     }
     let settings = common::defaults().cook.cpsv();
@@ -452,7 +459,12 @@ fn exposed_voxels_on_the_gpu_match_their_cpu_twin() {
     )];
     if let Some(dir) = common::corpus() {
         for name in ["bunny-holes.obj", "kenney-building-small-a.glb", "sphere-with-hole.stl"] {
-            meshes.push((name.into(), load_file(&dir.join(name)).expect("corpus mesh loads").0));
+            meshes.push((
+                name.into(),
+                load_file(&dir.join(name), &IngestLimits::default())
+                    .expect("corpus mesh loads")
+                    .0,
+            ));
         }
     }
     for (name, mut mesh) in meshes {

@@ -1,5 +1,7 @@
 //! The merged union of boxes is watertight: every directed edge is matched by its reverse.
 
+mod common;
+use common::signed_volume;
 use occluder_cook::occluder::{WorldBox, merge::merge};
 use std::collections::HashMap;
 
@@ -13,15 +15,6 @@ fn assert_watertight(mesh: &occluder_cook::mesh::Mesh) {
     }
     let open: Vec<_> = edges.iter().filter(|(_, n)| **n != 0).collect();
     assert!(open.is_empty(), "unmatched edges: {open:?}");
-}
-
-fn signed_volume(mesh: &occluder_cook::mesh::Mesh) -> f64 {
-    (0..mesh.triangles.len())
-        .map(|t| {
-            let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
-            a.dot(b.cross(c)) / 6.0
-        })
-        .sum()
 }
 
 fn b(lo: [f64; 3], hi: [f64; 3]) -> WorldBox {

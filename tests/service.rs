@@ -6,6 +6,7 @@ mod common;
 use common::http::*;
 use common::{cli, cuboid, torus};
 use glam::Vec3;
+use occluder_cook::mesh::IngestLimits;
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
@@ -52,7 +53,9 @@ fn submit_dedupe_cache_and_headers() {
     // Cached: 200 and the job that made it. The same geometry as GLB has the same key.
     let cached = post(&format!("{base}/v1/cook"), Some("model/obj"), &cube);
     assert_eq!((cached.status, cached.json()["job"].as_str()), (200, Some(job)));
-    let (mesh, _) = occluder_cook::mesh::load_bytes(&cube, occluder_cook::mesh::Format::Obj, None).unwrap();
+    let (mesh, _) =
+        occluder_cook::mesh::load_bytes(&cube, occluder_cook::mesh::Format::Obj, None, &IngestLimits::default())
+            .unwrap();
     let part = occluder_cook::mesh::glb::Part {
         name: "cube",
         mesh: &mesh,
@@ -61,6 +64,28 @@ fn submit_dedupe_cache_and_headers() {
     let as_glb = occluder_cook::mesh::glb::write(&[part], Value::Null);
     let from_glb = post(&format!("{base}/v1/cook"), Some("model/gltf-binary"), &as_glb);
     assert_eq!((from_glb.status, from_glb.json()["key"].as_str()), (200, Some(key)));
+    // And as PLY, by its content type.
+    let mut as_ply = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        mesh.positions.len(),
+        mesh.triangles.len()
+    );
+    for p in &mesh.positions {
+        as_ply += &format!("{} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        as_ply += &format!("3 {} {} {}\n", t[0], t[1], t[2]);
+    }
+    let from_ply = post(&format!("{base}/v1/cook"), Some("model/x-ply"), as_ply.as_bytes());
+    assert_eq!((from_ply.status, from_ply.json()["key"].as_str()), (200, Some(key)));
+    // FBX by ?format=.
+    let fbx = post(
+        &format!("{base}/v1/cook?format=fbx"),
+        None,
+        common::FBX_MIRRORED_CUBE.as_bytes(),
+    );
+    assert_eq!(fbx.status, 202, "{}", String::from_utf8_lossy(&fbx.body));
     // A changed setting is another key.
     let other = post(&format!("{base}/v1/cook?resolution=32"), Some("model/obj"), &cube);
     assert_eq!(other.status, 202);
@@ -93,6 +118,19 @@ fn submit_dedupe_cache_and_headers() {
     ] {
         assert!(openapi["paths"].get(path).is_some(), "{path} missing from openapi.json");
     }
+    let uploads = &openapi["paths"]["/v1/cook"]["post"]["requestBody"]["content"];
+    for media in [
+        "model/gltf-binary",
+        "model/vnd.fbx",
+        "model/obj",
+        "model/x-ply",
+        "model/stl",
+    ] {
+        assert!(
+            uploads.get(media).is_some(),
+            "{media} missing from POST /v1/cook: {uploads}"
+        );
+    }
     assert!(server.terminate().success(), "SIGTERM ends the server cleanly");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -110,7 +148,14 @@ fn bad_requests_get_json_errors_and_the_server_keeps_serving() {
     post(&cook, Some("model/gltf-binary"), b"glTF\x02\x00\x00\x00").assert_error(422, "bad_mesh");
     post(&cook, Some("model/obj"), b"").assert_error(422, "bad_mesh");
     post(&cook, None, &small_mesh(0)).assert_error(415, "unknown_format");
-    post(&format!("{cook}?format=ply"), None, &small_mesh(0)).assert_error(400, "unknown_format");
+    post(&format!("{cook}?format=dae"), None, &small_mesh(0)).assert_error(400, "unknown_format");
+    post(&format!("{cook}?format=ply"), None, &small_mesh(0)).assert_error(422, "bad_mesh");
+    post(
+        &format!("{cook}?max_placed_triangles=1"),
+        Some("model/obj"),
+        &small_mesh(0),
+    )
+    .assert_error(400, "bad_settings");
     post(&format!("{cook}?resolutoin=64"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
     post(&format!("{cook}?resolution=-1"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
     post(&format!("{cook}?service.workers=9"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");

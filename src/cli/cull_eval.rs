@@ -27,9 +27,10 @@ pub fn run(args: CullEvalArgs) -> Result<()> {
     if !(64..=256).contains(&pixels) || cameras == 0 {
         bail!("--pixels must be 64 to 256 and --cameras at least 1");
     }
-    let level = level::load(&args.level)?;
+    let limits = mesh::IngestLimits::default();
+    let level = level::load(&args.level, &limits)?;
     let (occluder, _) =
-        mesh::load_file(&args.occluders).with_context(|| format!("occluders {}", args.occluders.display()))?;
+        mesh::load_file(&args.occluders, &limits).with_context(|| format!("occluders {}", args.occluders.display()))?;
     let placement = gpu::for_choice(args.device)?;
     let start = Instant::now();
     let report = level::cull::cull_eval(&level, &occluder, cameras, pixels, placement.gpu.as_deref())

@@ -19,9 +19,10 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> Result<()> {
     let settings = args.settings.load()?;
-    let (mut original_mesh, _) = mesh::load_file(&args.original)?;
+    let limits = settings.cook.ingest_limits();
+    let (mut original_mesh, _) = mesh::load_file(&args.original, &limits)?;
     let topology = orient_closed_components(&mut original_mesh);
-    let occluder_mesh = match mesh::load_file(&args.occluder) {
+    let occluder_mesh = match mesh::load_file(&args.occluder, &limits) {
         Ok((m, _)) => m,
         // An empty occluder is a fair answer for a mesh with no volume.
         Err(mesh::IngestError::Empty(_)) => mesh::Mesh::default(),

@@ -1,11 +1,13 @@
 //! One module per command: its arguments and what it does. `main.rs` parses and dispatches.
 
 pub mod bench;
+pub mod convert;
 pub mod cook;
 pub mod cull_eval;
 pub mod demo;
 pub mod eval;
 pub mod fetch;
+pub mod fuzz;
 pub mod key;
 pub mod level;
 pub mod serve;

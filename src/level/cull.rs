@@ -18,7 +18,7 @@ use crate::geom::raster::{rasterize, rasterize_inner};
 use crate::gpu::Gpu;
 use crate::mesh::BoundaryEdge;
 use crate::mesh::topology::orient_closed_components;
-use crate::mesh::{Mesh, load_file, point_bounds};
+use crate::mesh::{IngestLimits, Mesh, load_file, point_bounds};
 use crate::voxel::winding::WindingField;
 use glam::{DMat4, DVec3};
 use gpu::InstanceScene;
@@ -130,7 +130,10 @@ fn load_meshes(level: &Level) -> Result<HashMap<&MeshRef, Mesh>, String> {
             continue;
         }
         let mesh = match m {
-            MeshRef::File(path) => load_file(path).map_err(|e| format!("{}: {e}", path.display()))?.0,
+            MeshRef::File(path) => {
+                let read = load_file(path, &IngestLimits::default());
+                read.map_err(|e| format!("{}: {e}", path.display()))?.0
+            }
             MeshRef::Part(p) => level.parts[*p].1.clone(),
             MeshRef::Key(k) => return Err(format!("mesh {k} is only a key: cull-eval needs the real meshes")),
         };

@@ -88,11 +88,11 @@ impl MeshRef {
     }
 }
 
-/// A level from a JSON manifest, an OBJ file whose groups are the instances, or a glTF scene
-/// whose mesh nodes are the instances (a mesh placed by many nodes is one unique mesh).
-pub fn load(path: &Path) -> Result<Level, LevelError> {
+/// A level from a JSON manifest, an OBJ file whose groups are the instances, or a glTF or FBX
+/// scene whose mesh nodes are the instances (a mesh placed by many nodes is one unique mesh).
+pub fn load(path: &Path, limits: &crate::mesh::IngestLimits) -> Result<Level, LevelError> {
     let format = crate::mesh::Format::from_extension(path).ok();
-    let Some(format) = format.filter(|f| *f != Format::Stl) else {
+    let Some(format) = format.filter(|f| matches!(f, Format::Obj | Format::Gltf | Format::Fbx)) else {
         return load_manifest(path);
     };
     let name = path.display().to_string();
@@ -109,7 +109,7 @@ pub fn load(path: &Path) -> Result<Level, LevelError> {
         let instances = (0..groups.len()).map(|g| (MeshRef::Part(g), DMat4::IDENTITY)).collect();
         (groups, instances)
     } else {
-        let (meshes, placements) = crate::mesh::load_gltf_instances(&bytes, path.parent()).map_err(bad)?;
+        let (meshes, placements) = crate::mesh::load_instances(&bytes, format, path.parent(), limits).map_err(bad)?;
         let instances = placements
             .into_iter()
             .map(|(m, world)| (MeshRef::Part(m), world))
@@ -280,7 +280,7 @@ pub async fn bake(
         .push(("read+key".into(), started.elapsed().as_secs_f64() * 1e3));
 
     let lookup = Instant::now();
-    let (mut occluders, misses) = look_up(level, keyed, store).await?;
+    let (mut occluders, misses) = look_up(level, keyed, store, &settings.cook.ingest_limits()).await?;
     let cache_hits = occluders.len();
     timings.0.push(("cache".into(), lookup.elapsed().as_secs_f64() * 1e3));
     progress(cache_hits, unique.len());
@@ -369,7 +369,8 @@ fn key_meshes(
                 };
                 let format = Format::from_extension(path).map_err(|e| bad(e.to_string()))?;
                 let bytes = std::fs::read(path).map_err(|e| bad(e.to_string()))?;
-                let (mesh, stats) = load_bytes(&bytes, format, path.parent()).map_err(|e| bad(e.to_string()))?;
+                let (mesh, stats) = load_bytes(&bytes, format, path.parent(), &settings.cook.ingest_limits())
+                    .map_err(|e| bad(e.to_string()))?;
                 let key = cache_key(&mesh, &settings.cook);
                 let input = Input {
                     format: format.name().into(),
@@ -391,6 +392,7 @@ async fn look_up(
     level: &Level,
     keyed: Vec<(MeshRef, String, Option<Source>)>,
     store: &dyn Store,
+    limits: &crate::mesh::IngestLimits,
 ) -> Result<(HashMap<MeshRef, Occluder>, Vec<(MeshRef, String, Source)>), LevelError> {
     let mut occluders = HashMap::new();
     let mut misses = Vec::new();
@@ -404,7 +406,7 @@ async fn look_up(
             Some(source) => source,
             None => match store.input(&key).await.map_err(cache_error)? {
                 Some(input) => {
-                    let (mesh, stats) = input.load().map_err(|e| LevelError::BadMesh {
+                    let (mesh, stats) = input.load(limits).map_err(|e| LevelError::BadMesh {
                         mesh: key.clone(),
                         message: e.to_string(),
                     })?;

@@ -1,6 +1,7 @@
 //! glTF 2.0 (.gltf and .glb): every triangle primitive of the default scene, in world space.
 
-use super::{IngestError, RawMesh};
+use super::gltf_meshopt as meshopt;
+use super::{IngestError, IngestLimits, Instances, RawMesh};
 use base64::Engine;
 use glam::{Mat4, Vec3};
 use gltf::mesh::Mode;
@@ -10,40 +11,43 @@ const FORMAT: &str = "glTF";
 /// Compressed geometry with no dependable Rust decoder; gltf-transform writes it out plain.
 const DRACO: &str = "KHR_draco_mesh_compression";
 
-pub fn read(bytes: &[u8], base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
+pub fn read(bytes: &[u8], base_dir: Option<&Path>, limits: &IngestLimits) -> Result<RawMesh, IngestError> {
     let invalid = match parse(bytes)? {
-        Ok(gltf) => return read_scene(&gltf, base_dir),
+        Ok(gltf) => return read_guarded(&gltf, base_dir, limits),
         Err(invalid) => invalid,
     };
-    // The reader may panic on an invalid document, so it runs guarded.
     let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
-    let read_guarded = |gltf: &gltf::Gltf| std::panic::catch_unwind(|| read_scene(gltf, base_dir)).ok();
     if let Some(gltf) = &lenient
-        && let Some(warning) = appearance_ignored(&invalid, gltf)
-        && let Some(read) = read_guarded(gltf)
+        && let Some(ignored) = ignorable(&invalid, gltf)
     {
-        let mut raw = read?;
-        raw.warnings.push(warning);
+        let mut raw = read_guarded(gltf, base_dir, limits)?;
+        raw.warnings.extend(ignored_warning(&ignored));
         return Ok(raw);
     }
     // Say what is really wrong where the geometry can still be read (infinite coordinates make
     // min/max invalid, for one).
     let geometry = lenient
         .as_ref()
-        .and_then(read_guarded)
-        .map(|read| read.and_then(super::weld));
+        .map(|gltf| read_guarded(gltf, base_dir, limits).and_then(super::weld));
     Err(match geometry {
         Some(Err(
-            e @ (IngestError::NonFinite(..) | IngestError::IndexOutOfRange { .. } | IngestError::NodeCycle(_)),
+            e @ (IngestError::NonFinite(..)
+            | IngestError::IndexOutOfRange { .. }
+            | IngestError::NodeCycle(_)
+            | IngestError::TooLarge(_)),
         )) => e,
         _ => IngestError::malformed(FORMAT, first_problem(&invalid)),
     })
 }
 
+const QUANTIZATION: &str = "KHR_mesh_quantization";
+/// Geometry extensions this reader decodes, which the validator does not know.
+const DECODED: [&str; 2] = [QUANTIZATION, meshopt::EXTENSION];
+
 /// Where every problem of `gltf` (its unvalidated document) lies in textures, images, samplers
-/// or materials, or is a required extension that touches only those, a warning naming those
-/// extensions: the geometry reads as if they were absent.
-fn appearance_ignored(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<String> {
+/// or materials, or is a required extension that touches only those or that we decode, the
+/// extensions ignored: the geometry reads as if they were absent.
+fn ignorable(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<Vec<String>> {
     let gltf::Error::Validation(problems) = invalid else {
         return None;
     };
@@ -56,7 +60,10 @@ fn appearance_ignored(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<String
             .strip_prefix("extensionsRequired[")
             .and_then(|rest| rest.split_once(']'))
         {
-            let name = required.get(index.parse::<usize>().ok()?)?;
+            let name = *required.get(index.parse::<usize>().ok()?)?;
+            if DECODED.contains(&name) {
+                continue;
+            }
             if !(name.contains("_texture_") || name.contains("_materials_")) {
                 return None;
             }
@@ -68,12 +75,32 @@ fn appearance_ignored(invalid: &gltf::Error, gltf: &gltf::Gltf) -> Option<String
             return None;
         }
     }
+    Some(ignored)
+}
+
+/// The warning that names the extensions ignored, if any were.
+fn ignored_warning(ignored: &[String]) -> Option<String> {
     (!ignored.is_empty()).then(|| {
         format!(
             "ignored {}: it touches only textures or materials, which an occluder does not use",
             ignored.join(", ")
         )
     })
+}
+
+/// The reader indexes what a document declares, and may panic on an unvalidated one: that is an
+/// error in the file, not a crash.
+fn guarded<T>(read: impl FnOnce() -> Result<T, IngestError>) -> Result<T, IngestError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(read)).unwrap_or_else(|_| {
+        Err(IngestError::malformed(
+            FORMAT,
+            "an accessor or view points outside its data",
+        ))
+    })
+}
+
+fn read_guarded(gltf: &gltf::Gltf, base_dir: Option<&Path>, limits: &IngestLimits) -> Result<RawMesh, IngestError> {
+    guarded(|| read_scene(gltf, base_dir, limits))
 }
 
 /// The document parsed and validated. The validator indexes arrays a malformed file declares,
@@ -105,41 +132,84 @@ pub(super) fn first_problem(error: &gltf::Error) -> String {
     }
 }
 
-fn read_scene(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<RawMesh, IngestError> {
-    let buffers = load_buffers(gltf, base_dir)?;
+fn read_scene(gltf: &gltf::Gltf, base_dir: Option<&Path>, limits: &IngestLimits) -> Result<RawMesh, IngestError> {
+    let source = Source::open(gltf, base_dir, limits)?;
     let mut raw = RawMesh::default();
-    walk_scene(gltf, &mut |mesh, world| read_mesh(&mesh, world, &buffers, &mut raw))?;
+    walk_scene(&source.document, limits, &mut |mesh, world| {
+        source.read_mesh(&mesh, world, &mut raw)
+    })?;
     Ok(raw)
+}
+
+/// What primitives are read from: the document with its compressed views decoded, the buffers'
+/// bytes, and how.
+struct Source<'a> {
+    document: gltf::Document,
+    buffers: Vec<Vec<u8>>,
+    limits: &'a IngestLimits,
+    /// KHR_mesh_quantization: positions may be integers.
+    quantized: bool,
+}
+
+impl<'a> Source<'a> {
+    fn open(gltf: &gltf::Gltf, base_dir: Option<&Path>, limits: &'a IngestLimits) -> Result<Source<'a>, IngestError> {
+        let mut buffers = load_buffers(gltf, base_dir)?;
+        let uses = |name: &str| gltf.extensions_used().any(|e| e == name);
+        let document = match uses(meshopt::EXTENSION) {
+            true => meshopt::decode(gltf.document.clone(), &mut buffers, limits)?,
+            false => gltf.document.clone(),
+        };
+        Ok(Source {
+            quantized: uses(QUANTIZATION),
+            document,
+            buffers,
+            limits,
+        })
+    }
 }
 
 /// A glTF scene as a level: each mesh once, in its own space, with its name, and each node that
 /// places a mesh as (mesh index, world transform).
-pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<Instances, IngestError> {
-    let gltf = match parse(bytes)? {
-        Ok(gltf) => gltf,
+pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>, limits: &IngestLimits) -> Result<Instances, IngestError> {
+    let (gltf, warning) = match parse(bytes)? {
+        Ok(gltf) => (gltf, None),
         Err(invalid) => {
             // As in `read`: an invalid appearance does not block the geometry.
             let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
-            match lenient.and_then(|gltf| Some((appearance_ignored(&invalid, &gltf)?, gltf))) {
-                Some((warning, gltf)) => {
-                    tracing::warn!("{warning}");
-                    gltf
-                }
+            match lenient.and_then(|gltf| Some((ignorable(&invalid, &gltf)?, gltf))) {
+                Some((ignored, gltf)) => (gltf, ignored_warning(&ignored)),
                 None => return Err(IngestError::malformed(FORMAT, first_problem(&invalid))),
             }
         }
     };
-    let buffers = load_buffers(&gltf, base_dir)?;
+    if let Some(warning) = warning {
+        tracing::warn!("{warning}");
+    }
+    guarded(|| placed_meshes(&gltf, base_dir, limits))
+}
+
+/// Each mesh the scene places, read once in its own space, and the placements.
+fn placed_meshes(gltf: &gltf::Gltf, base_dir: Option<&Path>, limits: &IngestLimits) -> Result<Instances, IngestError> {
+    let source = Source::open(gltf, base_dir, limits)?;
+    // Meshes are numbered in the order the scene first places them; unplaced ones are not read.
+    let mut slots = vec![None; source.document.meshes().len()];
+    let mut placed = Vec::new();
     let mut placements = Vec::new();
-    walk_scene(&gltf, &mut |mesh, world| {
-        placements.push((mesh.index(), world));
+    walk_scene(&source.document, limits, &mut |mesh, world| {
+        let slot = slots[mesh.index()].get_or_insert_with(|| {
+            placed.push(mesh.index());
+            placed.len() - 1
+        });
+        placements.push((*slot, world));
         Ok(())
     })?;
-    let meshes = gltf
-        .meshes()
-        .map(|mesh| {
+    let all: Vec<gltf::Mesh> = source.document.meshes().collect();
+    let meshes = placed
+        .iter()
+        .map(|&index| {
+            let mesh = &all[index];
             let mut raw = RawMesh::default();
-            read_mesh(&mesh, Mat4::IDENTITY, &buffers, &mut raw)?;
+            source.read_mesh(mesh, Mat4::IDENTITY, &mut raw)?;
             let name = mesh
                 .name()
                 .map_or_else(|| format!("mesh {}", mesh.index()), str::to_string);
@@ -149,31 +219,103 @@ pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<Instances
     Ok(Instances { meshes, placements })
 }
 
-/// What [`read_instances`] finds.
-pub struct Instances {
-    pub meshes: Vec<(String, RawMesh)>,
-    pub placements: Vec<(usize, Mat4)>,
-}
-
-/// Calls `found(mesh, world transform)` for every node of the default scene that has a mesh.
+/// Calls `found(mesh, world transform)` for every node of the default scene that has a mesh,
+/// once the scene is known to be acyclic and to place no more than `limits` allow.
 fn walk_scene(
-    gltf: &gltf::Gltf,
+    gltf: &gltf::Document,
+    limits: &IngestLimits,
     found: &mut dyn FnMut(gltf::Mesh, Mat4) -> Result<(), IngestError>,
 ) -> Result<(), IngestError> {
     let scene = gltf
         .default_scene()
         .or_else(|| gltf.scenes().next())
         .ok_or_else(|| IngestError::malformed(FORMAT, "the file has no scene"))?;
-    let mut path = Vec::new();
-    for node in scene.nodes() {
-        visit(&node, Mat4::IDENTITY, &mut path, found)?;
+    let nodes: Vec<gltf::Node> = gltf.nodes().collect();
+    let roots: Vec<usize> = scene.nodes().map(|n| n.index()).collect();
+    let (visits, triangles) = placed_counts(&nodes, &roots)?;
+    limits.check_placed(triangles)?;
+    // Each visit multiplies a matrix: a graph of empty nodes reused many times costs time too.
+    limits.check_placed(visits)?;
+    // Depth first with an explicit stack: a chain of nodes deeper than the thread's stack is valid.
+    let mut stack: Vec<(usize, Mat4)> = roots.iter().rev().map(|&n| (n, Mat4::IDENTITY)).collect();
+    while let Some((index, parent)) = stack.pop() {
+        let node = &nodes[index];
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        if let Some(mesh) = node.mesh() {
+            found(mesh, world)?;
+        }
+        stack.extend(
+            node.children()
+                .collect::<Vec<_>>()
+                .iter()
+                .rev()
+                .map(|c| (c.index(), world)),
+        );
     }
     Ok(())
+}
+
+/// The nodes a scene visits and the triangles it places, from each node's own counts and its
+/// children's, without expanding the graph: a node with several parents, or one listed many
+/// times, multiplies both. Fails on a cycle.
+fn placed_counts(nodes: &[gltf::Node], roots: &[usize]) -> Result<(u64, u64), IngestError> {
+    let mut counts: Vec<Option<(u64, u64)>> = vec![None; nodes.len()];
+    let mut on_path = vec![false; nodes.len()];
+    // (node, whether its children are counted): post-order with an explicit stack.
+    let mut stack: Vec<(usize, bool)> = roots.iter().map(|&n| (n, false)).collect();
+    while let Some((index, children_done)) = stack.pop() {
+        let node = &nodes[index];
+        if children_done {
+            on_path[index] = false;
+            let own = node.mesh().map_or(0, |mesh| mesh_triangles(&mesh));
+            let (visits, triangles) = node
+                .children()
+                .filter_map(|c| counts[c.index()])
+                .fold((1u64, own), |(v, t), (cv, ct)| {
+                    (v.saturating_add(cv), t.saturating_add(ct))
+                });
+            counts[index] = Some((visits, triangles));
+            continue;
+        }
+        if counts[index].is_some() {
+            continue;
+        }
+        if on_path[index] {
+            return Err(IngestError::NodeCycle(index));
+        }
+        on_path[index] = true;
+        stack.push((index, true));
+        stack.extend(node.children().map(|c| (c.index(), false)));
+    }
+    Ok(roots
+        .iter()
+        .filter_map(|&r| counts[r])
+        .fold((0, 0), |(v, t), (rv, rt)| (v.saturating_add(rv), t.saturating_add(rt))))
+}
+
+/// The triangles a mesh declares, from its accessors' counts, before anything is read.
+fn mesh_triangles(mesh: &gltf::Mesh) -> u64 {
+    mesh.primitives()
+        .map(|primitive| {
+            let corners = primitive
+                .indices()
+                .or_else(|| primitive.get(&gltf::Semantic::Positions))
+                .map_or(0, |a| a.count() as u64);
+            match primitive.mode() {
+                Mode::Triangles => corners / 3,
+                Mode::TriangleStrip | Mode::TriangleFan => corners.saturating_sub(2),
+                _ => 0,
+            }
+        })
+        .fold(0, u64::saturating_add)
 }
 
 fn load_buffers(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<Vec<Vec<u8>>, IngestError> {
     gltf.buffers()
         .map(|buffer| {
+            if meshopt::is_fallback(&buffer) {
+                return Ok(Vec::new());
+            }
             let data = match buffer.source() {
                 gltf::buffer::Source::Bin => gltf
                     .blob
@@ -222,69 +364,136 @@ fn read_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, IngestError> 
         ));
     }
     let path = dir.join(relative);
-    std::fs::read(&path).map_err(|source| IngestError::Io {
+    std::fs::read(&path).map_err(|reason| IngestError::Io {
         path: path.display().to_string(),
-        source,
+        reason,
     })
 }
 
-fn visit(
-    node: &gltf::Node,
-    parent: Mat4,
-    path: &mut Vec<usize>,
-    found: &mut dyn FnMut(gltf::Mesh, Mat4) -> Result<(), IngestError>,
-) -> Result<(), IngestError> {
-    if path.contains(&node.index()) {
-        return Err(IngestError::NodeCycle(node.index()));
+impl Source<'_> {
+    fn read_mesh(&self, mesh: &gltf::Mesh, world: Mat4, raw: &mut RawMesh) -> Result<(), IngestError> {
+        for primitive in mesh.primitives() {
+            self.read_primitive(&primitive, world, raw)?;
+        }
+        Ok(())
     }
-    let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-    if let Some(mesh) = node.mesh() {
-        found(mesh, world)?;
+
+    /// Whether a triangle primitive has anything to read, after refusing accessors the reader
+    /// would misread or panic on: positions that are not float VEC3 (or, with
+    /// KHR_mesh_quantization, 8- or 16-bit integer VEC3), indices that are not unsigned integer
+    /// scalars, and items that no bytes back (sparse, with no bufferView: every item not
+    /// substituted is zero) past what the limits allow.
+    fn has_readable_accessors(&self, primitive: &gltf::Primitive) -> Result<bool, IngestError> {
+        use gltf::accessor::{DataType, Dimensions};
+        let malformed = |message: String| IngestError::malformed(FORMAT, message);
+        let positions = primitive
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| malformed("a triangle primitive has no POSITION".into()))?;
+        let float = positions.data_type() == DataType::F32;
+        let integer = self.quantized && positions.data_type() != DataType::U32;
+        if positions.dimensions() != Dimensions::Vec3 || !(float || integer) {
+            let allowed = match self.quantized {
+                true => "float or 8- and 16-bit integer VEC3",
+                false => "float VEC3 (integers need KHR_mesh_quantization)",
+            };
+            return Err(malformed(format!(
+                "accessor {}: positions are {:?} {:?}, not {allowed}",
+                positions.index(),
+                positions.data_type(),
+                positions.dimensions(),
+            )));
+        }
+        let indices = primitive.indices();
+        if let Some(indices) = &indices
+            && (!matches!(indices.data_type(), DataType::U8 | DataType::U16 | DataType::U32)
+                || indices.dimensions() != Dimensions::Scalar)
+        {
+            return Err(malformed(format!(
+                "accessor {}: indices are {:?} {:?}, not unsigned integer scalars",
+                indices.index(),
+                indices.data_type(),
+                indices.dimensions()
+            )));
+        }
+        let limit = self.limits.max_unbacked_items();
+        for accessor in [Some(positions), indices].into_iter().flatten() {
+            if accessor.view().is_none() && accessor.count() as u64 > limit {
+                return Err(IngestError::TooLarge(format!(
+                    "accessor {} declares {} items that no bufferView backs, over 3 × cook.max_placed_triangles ({limit})",
+                    accessor.index(),
+                    accessor.count(),
+                )));
+            }
+            if accessor.count() == 0 {
+                return Ok(false);
+            }
+        }
+        Ok(true)
     }
-    path.push(node.index());
-    for child in node.children() {
-        visit(&child, world, path, found)?;
+
+    /// A position accessor's points: floats as they are; with KHR_mesh_quantization, integers
+    /// as they are, or mapped to [-1, 1] (signed) or [0, 1] (unsigned) when normalized.
+    fn positions(&self, accessor: gltf::Accessor) -> Option<Vec<Vec3>> {
+        use gltf::accessor::DataType;
+        match accessor.data_type() {
+            DataType::F32 => self.points::<f32>(accessor, None),
+            DataType::I8 => self.points::<i8>(accessor, Some(127.0)),
+            DataType::U8 => self.points::<u8>(accessor, Some(255.0)),
+            DataType::I16 => self.points::<i16>(accessor, Some(32767.0)),
+            DataType::U16 => self.points::<u16>(accessor, Some(65535.0)),
+            DataType::U32 => None,
+        }
     }
-    path.pop();
-    Ok(())
+
+    /// Points of components `C`; integers are divided by their `max` when normalized.
+    fn points<C: Copy + Into<f32>>(&self, accessor: gltf::Accessor, max: Option<f32>) -> Option<Vec<Vec3>>
+    where
+        [C; 3]: gltf::accessor::Item,
+    {
+        let max = max.filter(|_| accessor.normalized());
+        let value = |c: C| match max {
+            Some(max) => (c.into() / max).max(-1.0),
+            None => c.into(),
+        };
+        let data = |b: gltf::Buffer| self.buffers.get(b.index()).map(Vec::as_slice);
+        let points = gltf::accessor::Iter::<[C; 3]>::new(accessor, data)?;
+        Some(points.map(|p| Vec3::from(p.map(value))).collect())
+    }
+
+    fn read_primitive(&self, primitive: &gltf::Primitive, world: Mat4, raw: &mut RawMesh) -> Result<(), IngestError> {
+        let mode = primitive.mode();
+        if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+            raw.skipped_primitives += 1;
+            raw.warnings
+                .push(format!("skipped a {mode:?} primitive: only triangles have a surface"));
+            return Ok(());
+        }
+        if !self.has_readable_accessors(primitive)? {
+            return Ok(());
+        }
+        let out_of_buffer = || IngestError::malformed(FORMAT, "an accessor reaches past the end of its buffer");
+        let positions: Vec<Vec3> = primitive
+            .get(&gltf::Semantic::Positions)
+            .and_then(|accessor| self.positions(accessor))
+            .ok_or_else(out_of_buffer)?
+            .into_iter()
+            .map(|p| world.transform_point3(p))
+            .collect();
+        let reader = primitive.reader(|b| self.buffers.get(b.index()).map(Vec::as_slice));
+        let indices: Vec<u64> = match reader.read_indices() {
+            Some(indices) => indices.into_u32().map(u64::from).collect(),
+            None if primitive.indices().is_some() => return Err(out_of_buffer()),
+            None => (0..positions.len() as u64).collect(),
+        };
+        raw.append(&positions, triangles_of(mode, &indices, world.determinant() < 0.0))
+    }
 }
 
-fn read_mesh(mesh: &gltf::Mesh, world: Mat4, buffers: &[Vec<u8>], raw: &mut RawMesh) -> Result<(), IngestError> {
-    for primitive in mesh.primitives() {
-        read_primitive(&primitive, world, buffers, raw)?;
-    }
-    Ok(())
-}
-
-fn read_primitive(
-    primitive: &gltf::Primitive,
-    world: Mat4,
-    buffers: &[Vec<u8>],
-    raw: &mut RawMesh,
-) -> Result<(), IngestError> {
-    let mode = primitive.mode();
-    if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
-        raw.skipped_primitives += 1;
-        raw.warnings
-            .push(format!("skipped a {mode:?} primitive: only triangles have a surface"));
-        return Ok(());
-    }
-    let reader = primitive.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
-    let out_of_buffer = || IngestError::malformed(FORMAT, "an accessor reaches past the end of its buffer");
-    let positions: Vec<Vec3> = reader
-        .read_positions()
-        .ok_or_else(out_of_buffer)?
-        .map(|p| world.transform_point3(Vec3::from(p)))
-        .collect();
-    let indices: Vec<u64> = match reader.read_indices() {
-        Some(indices) => indices.into_u32().map(u64::from).collect(),
-        None if primitive.indices().is_some() => return Err(out_of_buffer()),
-        None => (0..positions.len() as u64).collect(),
-    };
-    // A mirroring transform flips the winding; keep faces facing the way they were authored.
-    let flip = world.determinant() < 0.0;
+/// The triangles a list, strip or fan of `indices` makes; `flip` reverses their winding, as a
+/// mirroring transform needs to keep faces facing the way they were authored.
+fn triangles_of(mode: Mode, indices: &[u64], flip: bool) -> Vec<[u64; 3]> {
     let ordered = |[a, b, c]: [u64; 3]| if flip { [a, c, b] } else { [a, b, c] };
-    let triangles: Vec<[u64; 3]> = match mode {
+    match mode {
         Mode::Triangles => indices.chunks_exact(3).map(|t| ordered([t[0], t[1], t[2]])).collect(),
         Mode::TriangleStrip => (2..indices.len())
             .map(|i| {
@@ -295,6 +504,5 @@ fn read_primitive(
         _ => (2..indices.len())
             .map(|i| ordered([indices[0], indices[i - 1], indices[i]]))
             .collect(),
-    };
-    raw.append(&positions, triangles)
+    }
 }

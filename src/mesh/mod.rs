@@ -1,8 +1,12 @@
-//! Meshes in flat arrays: ingest from glTF/GLB, OBJ and STL, welding, validation and GLB export.
+//! Meshes in flat arrays: ingest from glTF/GLB, FBX, OBJ, PLY and STL, welding, validation and
+//! GLB export.
 
+mod fbx;
 pub mod glb;
 mod gltf_in;
+mod gltf_meshopt;
 mod obj;
+mod ply;
 pub mod shapes;
 mod stl;
 pub mod topology;
@@ -24,31 +28,40 @@ pub struct Mesh {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
     Gltf,
+    Fbx,
     Obj,
+    Ply,
     Stl,
 }
 
 impl Format {
-    /// `gltf`, `obj` or `stl`: how inputs are filed.
+    /// Every format, in the order errors and documents list them.
+    pub const ALL: [Format; 5] = [Format::Gltf, Format::Fbx, Format::Obj, Format::Ply, Format::Stl];
+
+    /// `gltf`, `fbx`, `obj`, `ply` or `stl`: how inputs are filed.
     pub fn name(self) -> &'static str {
         match self {
             Format::Gltf => "gltf",
+            Format::Fbx => "fbx",
             Format::Obj => "obj",
+            Format::Ply => "ply",
             Format::Stl => "stl",
         }
     }
 
-    /// The format of a name or extension: `glb`, `gltf`, `obj` or `stl`, in any case.
+    /// The format of a name or extension: `glb`, `gltf`, `fbx`, `obj`, `ply` or `stl`, in any case.
     pub fn from_name(name: &str) -> Option<Format> {
         match name.to_ascii_lowercase().as_str() {
             "glb" | "gltf" => Some(Format::Gltf),
+            "fbx" => Some(Format::Fbx),
             "obj" => Some(Format::Obj),
+            "ply" => Some(Format::Ply),
             "stl" => Some(Format::Stl),
             _ => None,
         }
     }
 
-    /// The format named by a file extension (`glb`, `gltf`, `obj`, `stl`).
+    /// The format named by a file extension (`glb`, `gltf`, `fbx`, `obj`, `ply`, `stl`).
     pub fn from_extension(path: &Path) -> Result<Format, IngestError> {
         path.extension()
             .and_then(|e| e.to_str())
@@ -60,9 +73,10 @@ impl Format {
 /// Why a mesh file was rejected. Each message is one line naming the problem.
 #[derive(Debug, thiserror::Error)]
 pub enum IngestError {
-    #[error("cannot read {path}: {source}")]
-    Io { path: String, source: std::io::Error },
-    #[error("unknown mesh format for {0}: expected .glb, .gltf, .obj or .stl")]
+    // `reason`, not `source`: as a source, the reason would be printed twice in a chain.
+    #[error("cannot read {path}: {reason}")]
+    Io { path: String, reason: std::io::Error },
+    #[error("unknown mesh format for {0}: expected .glb, .gltf, .fbx, .obj, .ply or .stl")]
     UnknownFormat(String),
     #[error("malformed {format} file: {message}")]
     Malformed { format: &'static str, message: String },
@@ -74,6 +88,42 @@ pub enum IngestError {
     NodeCycle(usize),
     #[error("the mesh has no triangles{0}")]
     Empty(String),
+    #[error("{0}")]
+    TooLarge(String),
+}
+
+/// What ingest may allocate for one file, past what the file's own bytes hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IngestLimits {
+    /// Triangles a scene may place, counted before its node graph is expanded (`cook.max_placed_triangles`).
+    pub max_placed_triangles: u64,
+}
+
+impl Default for IngestLimits {
+    /// As config/default.toml.
+    fn default() -> Self {
+        IngestLimits {
+            max_placed_triangles: 20_000_000,
+        }
+    }
+}
+
+impl IngestLimits {
+    /// Refuses a scene that places more than `max_placed_triangles`.
+    pub(crate) fn check_placed(&self, placed: u64) -> Result<(), IngestError> {
+        match placed > self.max_placed_triangles {
+            true => Err(IngestError::TooLarge(format!(
+                "the scene places {placed} triangles, over cook.max_placed_triangles ({})",
+                self.max_placed_triangles
+            ))),
+            false => Ok(()),
+        }
+    }
+
+    /// Items an accessor that no bytes back may declare: the vertices of the triangles allowed.
+    pub(crate) fn max_unbacked_items(&self) -> u64 {
+        self.max_placed_triangles.saturating_mul(3)
+    }
 }
 
 /// Longest message a malformed file gets: errors are one line of at most 200 characters.
@@ -103,6 +153,20 @@ pub struct IngestStats {
     /// Triangle primitives (glTF) or groups (OBJ) read: the draw calls the mesh costs.
     pub primitives: usize,
     pub warnings: Vec<String>,
+    /// The unit and up axis the file was authored in, where the format says (FBX).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source_frame: Option<SourceFrame>,
+}
+
+/// The frame every mesh is read into: glTF's.
+pub const GLTF_FRAME: &str = "metres, +Y up";
+
+/// A file's own unit and up axis, and the frame its geometry was converted to.
+#[derive(Clone, Debug, Serialize)]
+pub struct SourceFrame {
+    pub unit_meters: f64,
+    pub up_axis: &'static str,
+    pub converted_to: &'static str,
 }
 
 /// Triangles as read from a file, before welding.
@@ -113,6 +177,14 @@ pub(crate) struct RawMesh {
     pub skipped_primitives: usize,
     pub primitives: usize,
     pub warnings: Vec<String>,
+    pub source_frame: Option<SourceFrame>,
+}
+
+/// A scene as a level: each mesh once, in its own space, with its name, and each node that
+/// places a mesh as (mesh index, world transform).
+pub(crate) struct Instances {
+    pub meshes: Vec<(String, RawMesh)>,
+    pub placements: Vec<(usize, glam::Mat4)>,
 }
 
 impl RawMesh {
@@ -142,27 +214,43 @@ impl RawMesh {
 }
 
 /// Reads a mesh file; `.gltf` files may reference buffers beside them.
-pub fn load_file(path: &Path) -> Result<(Mesh, IngestStats), IngestError> {
+pub fn load_file(path: &Path, limits: &IngestLimits) -> Result<(Mesh, IngestStats), IngestError> {
     let format = Format::from_extension(path)?;
-    let bytes = std::fs::read(path).map_err(|source| IngestError::Io {
+    let bytes = std::fs::read(path).map_err(|reason| IngestError::Io {
         path: path.display().to_string(),
-        source,
+        reason,
     })?;
-    load_bytes(&bytes, format, path.parent())
+    load_bytes(&bytes, format, path.parent(), limits)
 }
 
 /// Parses a mesh from memory. `base_dir` resolves external glTF buffers; without it only
 /// embedded buffers are allowed.
-pub fn load_bytes(bytes: &[u8], format: Format, base_dir: Option<&Path>) -> Result<(Mesh, IngestStats), IngestError> {
-    let raw = match format {
-        Format::Gltf => gltf_in::read(bytes, base_dir)?,
-        Format::Obj => obj::read(bytes)?,
-        Format::Stl => stl::read(bytes)?,
-    };
+pub fn load_bytes(
+    bytes: &[u8],
+    format: Format,
+    base_dir: Option<&Path>,
+    limits: &IngestLimits,
+) -> Result<(Mesh, IngestStats), IngestError> {
+    let raw = load_raw(bytes, format, base_dir, limits)?;
     for warning in &raw.warnings {
         tracing::warn!("{warning}");
     }
     weld(raw)
+}
+
+fn load_raw(
+    bytes: &[u8],
+    format: Format,
+    base_dir: Option<&Path>,
+    limits: &IngestLimits,
+) -> Result<RawMesh, IngestError> {
+    match format {
+        Format::Gltf => gltf_in::read(bytes, base_dir, limits),
+        Format::Fbx => fbx::read(bytes, limits),
+        Format::Obj => obj::read(bytes),
+        Format::Ply => ply::read(bytes),
+        Format::Stl => stl::read(bytes),
+    }
 }
 
 /// A named mesh inside a level file (an OBJ group, a glTF mesh), welded.
@@ -177,11 +265,23 @@ pub fn load_obj_groups(bytes: &[u8]) -> Result<Vec<Part>, IngestError> {
 /// Where a level places its meshes: (index into its parts, world transform).
 pub type Placement = (usize, glam::DMat4);
 
-/// A glTF scene's meshes, each once and in its own space, and the nodes that place them:
-/// (index into the meshes, world transform). Meshes with no triangles are left out, with the
-/// nodes that place them.
-pub fn load_gltf_instances(bytes: &[u8], base_dir: Option<&Path>) -> Result<(Vec<Part>, Vec<Placement>), IngestError> {
-    let scene = gltf_in::read_instances(bytes, base_dir)?;
+/// A glTF or FBX scene's meshes, each once and in its own space, and the nodes that place them:
+/// (index into the meshes, world transform). Meshes that no node places, or with no triangles,
+/// are left out, with the nodes that place them. A format without a scene is one placed mesh.
+pub fn load_instances(
+    bytes: &[u8],
+    format: Format,
+    base_dir: Option<&Path>,
+    limits: &IngestLimits,
+) -> Result<(Vec<Part>, Vec<Placement>), IngestError> {
+    let scene = match format {
+        Format::Gltf => gltf_in::read_instances(bytes, base_dir, limits)?,
+        Format::Fbx => fbx::read_instances(bytes)?,
+        Format::Obj | Format::Ply | Format::Stl => Instances {
+            meshes: vec![(String::from("mesh"), load_raw(bytes, format, base_dir, limits)?)],
+            placements: vec![(0, glam::Mat4::IDENTITY)],
+        },
+    };
     let mut index = Vec::with_capacity(scene.meshes.len());
     let mut parts = Vec::new();
     for part in weld_parts(scene.meshes)? {
@@ -221,6 +321,7 @@ pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
         skipped_primitives: raw.skipped_primitives,
         primitives: raw.primitives,
         warnings: raw.warnings,
+        source_frame: raw.source_frame,
         ..Default::default()
     };
     // -0.0 and 0.0 are the same position.

@@ -170,28 +170,45 @@ fn format_of(query: Option<&str>, headers: &HeaderMap) -> Result<Format, ApiErro
         .map(|v| v.split(';').next().unwrap_or("").trim().to_ascii_lowercase());
     let name = match (query, content_type.as_deref()) {
         (Some(q), _) => q.to_ascii_lowercase(),
-        (None, Some("model/gltf-binary" | "model/gltf+json")) => "gltf".into(),
-        (None, Some("model/obj")) => "obj".into(),
-        (None, Some("model/stl" | "model/x.stl-binary" | "model/x.stl-ascii")) => "stl".into(),
-        (None, other) => {
-            return Err(ApiError::new(
-                StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "unknown_format",
-                format!(
-                    "Content-Type {} is not a mesh type: use model/gltf-binary, model/gltf+json, model/obj, model/stl or ?format=",
-                    other.unwrap_or("(none)")
-                ),
-            ));
-        }
+        (None, media) => match MEDIA_TYPES.iter().find(|(m, _)| Some(*m) == media) {
+            Some((_, format)) => format.name().into(),
+            None => {
+                let known: Vec<&str> = MEDIA_TYPES.iter().map(|(m, _)| *m).collect();
+                return Err(ApiError::new(
+                    StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                    "unknown_format",
+                    format!(
+                        "Content-Type {} is not a mesh type: use ?format= or one of {}",
+                        media.unwrap_or("(none)"),
+                        known.join(", ")
+                    ),
+                ));
+            }
+        },
     };
     Format::from_name(&name).ok_or_else(|| {
         ApiError::new(
             StatusCode::BAD_REQUEST,
             "unknown_format",
-            format!("format `{name}` is not one of glb, gltf, obj, stl"),
+            format!("format `{name}` is not one of glb, gltf, fbx, obj, ply, stl"),
         )
     })
 }
+
+/// The Content-Types a mesh upload may name instead of `?format=`. FBX and PLY have no
+/// registered type: the common unregistered ones are taken.
+const MEDIA_TYPES: [(&str, Format); 10] = [
+    ("model/gltf-binary", Format::Gltf),
+    ("model/gltf+json", Format::Gltf),
+    ("model/vnd.fbx", Format::Fbx),
+    ("application/vnd.autodesk.fbx", Format::Fbx),
+    ("model/obj", Format::Obj),
+    ("model/x-ply", Format::Ply),
+    ("application/ply", Format::Ply),
+    ("model/stl", Format::Stl),
+    ("model/x.stl-binary", Format::Stl),
+    ("model/x.stl-ascii", Format::Stl),
+];
 
 /// The server's settings with the query's overrides of the `sections` given (a bare name means
 /// `cook.NAME`).
@@ -209,6 +226,13 @@ fn job_settings(
             format!("cook.{key}")
         };
         let section = key.split('.').next().unwrap_or_default();
+        if key == "cook.max_placed_triangles" {
+            return Err(ApiError::new(
+                StatusCode::BAD_REQUEST,
+                "bad_settings",
+                format!("setting `{key}` is the server's limit: it cannot be set per job"),
+            ));
+        }
         if !sections.contains(&section) {
             let allowed: Vec<String> = sections.iter().map(|s| format!("{s}.*")).collect();
             return Err(ApiError::new(
@@ -240,9 +264,17 @@ fn job_settings(
 #[utoipa::path(
     post, path = "/v1/cook",
     params(
-        ("format" = Option<String>, Query, description = "glb, gltf, obj or stl; else the Content-Type decides"),
+        ("format" = Option<String>, Query, description = "glb, gltf, fbx, obj, ply or stl; else the Content-Type decides"),
     ),
-    request_body(content = Vec<u8>, description = "The mesh file", content_type = "application/octet-stream"),
+    request_body(description = "The mesh file: glTF (GLB, or .gltf with embedded buffers), FBX (binary or ASCII), OBJ, PLY or STL",
+        content(
+            (Vec<u8> = "model/gltf-binary"), (Vec<u8> = "model/gltf+json"),
+            (Vec<u8> = "model/vnd.fbx"), (Vec<u8> = "application/vnd.autodesk.fbx"),
+            (Vec<u8> = "model/obj"), (Vec<u8> = "model/x-ply"), (Vec<u8> = "application/ply"),
+            (Vec<u8> = "model/stl"), (Vec<u8> = "model/x.stl-binary"), (Vec<u8> = "model/x.stl-ascii"),
+            (Vec<u8> = "application/octet-stream"),
+        )
+    ),
     responses(
         (status = 200, description = "Already cooked: the result is there", body = Accepted),
         (status = 202, description = "Queued (or already queued or running)", body = Accepted),
@@ -297,7 +329,7 @@ async fn submit_cook(
             let cook_settings = settings.cook.clone();
             let parse = bytes.clone();
             let key = tokio::task::spawn_blocking(move || {
-                let (mesh, _) = load_bytes(&parse, format, None)?;
+                let (mesh, _) = load_bytes(&parse, format, None, &cook_settings.ingest_limits())?;
                 Ok::<_, crate::mesh::IngestError>(cache_key(&mesh, &cook_settings))
             })
             .await
@@ -450,7 +482,8 @@ async fn key_uploads(
             .map(|(name, bytes)| {
                 let bad = |why: String| bad_level(format!("part `{name}`: {why}"));
                 let format = Format::from_extension(std::path::Path::new(&name)).map_err(|e| bad(e.to_string()))?;
-                let (mesh, _) = load_bytes(&bytes, format, None).map_err(|e| bad(e.to_string()))?;
+                let (mesh, _) =
+                    load_bytes(&bytes, format, None, &cook.ingest_limits()).map_err(|e| bad(e.to_string()))?;
                 let input = Input {
                     format: format.name().into(),
                     bytes: bytes.to_vec(),

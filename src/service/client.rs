@@ -125,7 +125,8 @@ impl Client {
         out_dir: &Path,
     ) -> Result<String, Exit> {
         let name = file.display().to_string();
-        let (mesh, _) = load_file(file).map_err(|e| Exit::Local(format!("{name}: {e}")))?;
+        let (mesh, _) =
+            load_file(file, &settings.cook.ingest_limits()).map_err(|e| Exit::Local(format!("{name}: {e}")))?;
         let out = out_dir.join(format!(
             "{}.occluder.glb",
             file.file_stem().unwrap_or_default().to_string_lossy()
@@ -138,11 +139,9 @@ impl Client {
             }
             return Ok(local_key);
         }
-        let format = match Format::from_extension(file).map_err(|e| Exit::Local(format!("{name}: {e}")))? {
-            Format::Gltf => "gltf",
-            Format::Obj => "obj",
-            Format::Stl => "stl",
-        };
+        let format = Format::from_extension(file)
+            .map_err(|e| Exit::Local(format!("{name}: {e}")))?
+            .name();
         let bytes = std::fs::read(file).map_err(|e| Exit::Local(format!("{name}: {e}")))?;
         let mut url = format!("{}/v1/cook?format={format}", self.server);
         for (k, v) in query {

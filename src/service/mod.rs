@@ -439,7 +439,9 @@ impl Service {
         let running = job.clone();
         let work = tokio::task::spawn_blocking(move || {
             let start = std::time::Instant::now();
-            let (mesh, stats) = input.load().map_err(|e| fail("bad_mesh", e.to_string()))?;
+            let (mesh, stats) = input
+                .load(&settings.cook.ingest_limits())
+                .map_err(|e| fail("bad_mesh", e.to_string()))?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
             let progress = |stage: &str, done: f64| service.set_progress(&running, &progress, stage, done);
             let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress)

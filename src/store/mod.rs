@@ -44,10 +44,13 @@ impl Input {
     }
 
     /// Parses the mesh. External glTF buffers cannot be resolved: uploads are self-contained.
-    pub fn load(&self) -> Result<(crate::mesh::Mesh, crate::mesh::IngestStats), crate::mesh::IngestError> {
+    pub fn load(
+        &self,
+        limits: &crate::mesh::IngestLimits,
+    ) -> Result<(crate::mesh::Mesh, crate::mesh::IngestStats), crate::mesh::IngestError> {
         let format = crate::mesh::Format::from_name(&self.format)
             .ok_or_else(|| crate::mesh::IngestError::UnknownFormat(format!("an input filed as `{}`", self.format)))?;
-        crate::mesh::load_bytes(&self.bytes, format, None)
+        crate::mesh::load_bytes(&self.bytes, format, None, limits)
     }
 
     pub fn decode(encoded: &[u8]) -> Option<Input> {

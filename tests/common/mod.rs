@@ -33,6 +33,16 @@ pub fn cuboid(lo: Vec3, hi: Vec3, skip: &[usize]) -> Mesh {
     mesh
 }
 
+/// The volume a closed mesh bounds: positive when its triangles face outwards.
+pub fn signed_volume(mesh: &Mesh) -> f64 {
+    (0..mesh.triangles.len())
+        .map(|t| {
+            let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+            a.dot(b.cross(c)) / 6.0
+        })
+        .sum()
+}
+
 /// Several meshes as one, without welding.
 pub fn concat(parts: &[Mesh]) -> Mesh {
     let mut out = Mesh::default();
@@ -111,3 +121,45 @@ pub fn cli(args: &[&str]) -> (i32, String, String) {
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
 }
+
+/// An ASCII FBX 7.4 cube in [0, 1]³, authored Z-up in metres, placed by a node mirrored in x and
+/// moved 10 along x.
+pub const FBX_MIRRORED_CUBE: &str = r#"; FBX 7.4.0 project file
+FBXHeaderExtension:  {
+	FBXHeaderVersion: 1003
+	FBXVersion: 7400
+}
+GlobalSettings:  {
+	Version: 1000
+	Properties70:  {
+		P: "UpAxis", "int", "Integer", "",2
+		P: "UpAxisSign", "int", "Integer", "",1
+		P: "FrontAxis", "int", "Integer", "",1
+		P: "FrontAxisSign", "int", "Integer", "",-1
+		P: "CoordAxis", "int", "Integer", "",0
+		P: "CoordAxisSign", "int", "Integer", "",1
+		P: "UnitScaleFactor", "double", "Number", "",100
+	}
+}
+Objects:  {
+	Geometry: 1, "Geometry::cube", "Mesh" {
+		Vertices: *24 {
+			a: 0,0,0,1,0,0,1,1,0,0,1,0,0,0,1,1,0,1,1,1,1,0,1,1
+		}
+		PolygonVertexIndex: *24 {
+			a: 0,3,2,-2,4,5,6,-8,0,1,5,-5,1,2,6,-6,2,3,7,-7,3,0,4,-8
+		}
+	}
+	Model: 2, "Model::cube", "Mesh" {
+		Version: 232
+		Properties70:  {
+			P: "Lcl Translation", "Lcl Translation", "", "A",10,0,0
+			P: "Lcl Scaling", "Lcl Scaling", "", "A",-1,1,1
+		}
+	}
+}
+Connections:  {
+	C: "OO",2,0
+	C: "OO",1,2
+}
+"#;

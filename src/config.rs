@@ -40,6 +40,20 @@ pub struct ServiceSettings {
     pub nats_url: String,
     pub ack_wait_s: f64,
     pub max_deliver: u32,
+    pub auth: AuthMode,
+    pub tokens_file: String,
+    pub max_resolution: usize,
+    pub max_quad_grid: usize,
+}
+
+/// Who may call the service.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum AuthMode {
+    /// Anyone who reaches the port: `serve` takes it only on loopback, unless told otherwise.
+    None,
+    /// A bearer token from `service.tokens_file`, with the scope the endpoint needs.
+    Tokens,
 }
 
 impl ServiceSettings {
@@ -260,6 +274,8 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     let v = &s.service;
     check("service.workers", v.workers as f64, 1.0, 256.0)?;
     check("service.max_body_bytes", v.max_body_bytes as f64, 1024.0, 4e9)?;
+    check("service.max_resolution", v.max_resolution as f64, 4.0, 1024.0)?;
+    check("service.max_quad_grid", v.max_quad_grid as f64, 8.0, 4096.0)?;
     check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
     check("service.ack_wait_s", v.ack_wait_s, 1.0, 86_400.0)?;
     check("service.max_deliver", v.max_deliver as f64, 1.0, 1000.0)?;

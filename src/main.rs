@@ -35,6 +35,8 @@ enum Command {
     Submit(cli::submit::SubmitArgs),
     /// Download a cooked occluder by key (exit codes as submit).
     Fetch(cli::fetch::FetchArgs),
+    /// Make API tokens for a server with service.auth = "tokens".
+    Token(cli::token::TokenArgs),
     /// Bake a level (a JSON manifest, an OBJ whose groups are the instances, or a glTF or FBX
     /// scene whose mesh nodes are) into a few merged occluder batches, cooking each unique mesh
     /// once through the same sled cache as the service.
@@ -97,6 +99,7 @@ fn run(parsed: Cli) -> Result<()> {
         Command::Cook(args) => cli::cook::run(args),
         Command::Convert(args) => cli::convert::run(args),
         Command::Fuzz(args) => cli::fuzz::run(args),
+        Command::Token(args) => cli::token::run(args),
         Command::Demo(args) => cli::demo::run(args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Serve(args) => cli::serve::run(args),

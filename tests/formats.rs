@@ -67,6 +67,16 @@ fn ply_in_every_encoding_gives_the_cube_with_quads_fanned() {
             "{encoding}: same triangles, same winding"
         );
     }
+    let tight = IngestLimits {
+        max_placed_triangles: 11,
+    };
+    let refused = load_bytes(&ply_cube("ascii"), Format::Ply, None, &tight).map(|_| ());
+    assert!(
+        refused
+            .expect_err("12 triangles")
+            .to_string()
+            .contains("over cook.max_placed_triangles")
+    );
 }
 
 #[test]

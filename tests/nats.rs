@@ -169,6 +169,10 @@ fn two_api_nodes_share_dedup_and_cache_and_outlive_each_other() {
     assert_eq!(&from_a.body[..4], b"glTF");
     let again = post(&format!("{}/v1/cook?format=obj", b.base), None, &mesh);
     assert_eq!(again.status, 200);
+    // A job id that no store key can hold is simply no job, not a store failure.
+    for id in ["nope", "a.b*c%3E", &"f".repeat(28)] {
+        get(&format!("{}/v1/jobs/{id}", a.base), &[]).assert_error(404, "unknown_job");
+    }
     assert_eq!(again.json()["job"], job);
 
     // An API node killed after accepting jobs: they finish, seen through the other node.

@@ -118,6 +118,7 @@ fn submit_dedupe_cache_and_headers() {
     ] {
         assert!(openapi["paths"].get(path).is_some(), "{path} missing from openapi.json");
     }
+    assert_eq!(openapi["components"]["securitySchemes"]["bearer"]["scheme"], "bearer");
     let uploads = &openapi["paths"]["/v1/cook"]["post"]["requestBody"]["content"];
     for media in [
         "model/gltf-binary",
@@ -158,6 +159,20 @@ fn bad_requests_get_json_errors_and_the_server_keeps_serving() {
     .assert_error(400, "bad_settings");
     post(&format!("{cook}?resolutoin=64"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
     post(&format!("{cook}?resolution=-1"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
+    post(&format!("{cook}?resolution=1024"), Some("model/obj"), &small_mesh(0)).assert_error(422, "over_limit");
+    // A glTF of a few hundred bytes that declares 2e9 positions no bytes back: refused unread.
+    let sparse = serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "buffers": [{"byteLength": 12, "uri": "data:application/octet-stream;base64,AAAAAAEAAAACAAAA"}],
+        "bufferViews": [{"buffer": 0, "byteLength": 12}],
+        "accessors": [
+            {"componentType": 5126, "count": 2_000_000_000u64, "type": "VEC3", "min": [0.0, 0.0, 0.0], "max": [0.0, 0.0, 0.0]},
+            {"bufferView": 0, "componentType": 5125, "count": 3, "type": "SCALAR"}
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}]
+    });
+    post(&cook, Some("model/gltf+json"), sparse.to_string().as_bytes()).assert_error(422, "bad_mesh");
+    post(&format!("{cook}?quad_grid=4096"), Some("model/obj"), &small_mesh(0)).assert_error(422, "over_limit");
     post(&format!("{cook}?service.workers=9"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
     get(&format!("{base}/v1/nowhere"), &[]).assert_error(404, "not_found");
     reply(agent().delete(&cook).call()).assert_error(405, "method_not_allowed");
@@ -185,7 +200,7 @@ fn a_full_queue_answers_429_with_retry_after() {
 #[test]
 fn kill_9_then_restart_loses_no_job_and_no_result() {
     let dir = data_dir("kill");
-    let server = Server::start(&dir, &["service.workers=1"]);
+    let server = Server::start(&dir, &["service.workers=1", "service.max_resolution=512"]);
     let base = server.base.clone();
     let quick = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(1)).json();
     let quick_job = quick["job"].as_str().unwrap().to_string();

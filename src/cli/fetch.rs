@@ -1,19 +1,18 @@
 use anyhow::Result;
 use clap::Args;
-use occluder_cook::service::client;
 use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct FetchArgs {
     key: String,
-    #[arg(long)]
-    server: String,
+    #[command(flatten)]
+    server: super::ServerArgs,
     #[arg(short, long)]
     output: PathBuf,
 }
 
 pub fn run(args: FetchArgs) -> Result<()> {
-    client::Client::new(&args.server).fetch(&args.key, &args.output)?;
+    args.server.client().fetch(&args.key, &args.output)?;
     println!("wrote {}", args.output.display());
     Ok(())
 }

@@ -12,6 +12,7 @@ pub mod key;
 pub mod level;
 pub mod serve;
 pub mod submit;
+pub mod token;
 pub mod worker;
 
 use anyhow::{Context, Result};
@@ -97,6 +98,23 @@ impl SettingsArgs {
             overrides.push(config::parse_assignment(assignment)?);
         }
         Ok(overrides)
+    }
+}
+
+/// Where a client command finds the server, and how it proves who it is.
+#[derive(Args)]
+pub struct ServerArgs {
+    /// e.g. http://127.0.0.1:8650
+    #[arg(long)]
+    server: String,
+    /// A bearer token, for a server with service.auth = "tokens".
+    #[arg(long, env = "OCCLUDER_COOK_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+}
+
+impl ServerArgs {
+    pub fn client(&self) -> occluder_cook::service::client::Client {
+        occluder_cook::service::client::Client::new(&self.server, self.token.clone())
     }
 }
 

@@ -18,6 +18,9 @@ pub struct ServeArgs {
     /// service.nats_url: keep jobs and results in NATS JetStream instead of sled.
     #[arg(long)]
     nats: Option<String>,
+    /// Serve an address other machines can reach with service.auth = "none".
+    #[arg(long)]
+    insecure_no_auth: bool,
     #[command(flatten)]
     settings: SettingsArgs,
 }
@@ -28,6 +31,6 @@ pub fn run(args: ServeArgs) -> Result<()> {
         ("service.listen", args.listen),
         ("service.data_dir", path_setting(args.data_dir)),
     ])?;
-    tokio::runtime::Runtime::new()?.block_on(service::serve(settings, args.no_workers))?;
+    tokio::runtime::Runtime::new()?.block_on(service::serve(settings, args.no_workers, args.insecure_no_auth))?;
     Ok(())
 }

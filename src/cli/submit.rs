@@ -8,9 +8,8 @@ use std::path::PathBuf;
 pub struct SubmitArgs {
     #[arg(required = true)]
     files: Vec<PathBuf>,
-    /// e.g. http://127.0.0.1:8650
-    #[arg(long)]
-    server: String,
+    #[command(flatten)]
+    server: super::ServerArgs,
     /// Wait for the jobs and write each occluder as OUT_DIR/<name>.occluder.glb.
     #[arg(long)]
     wait: bool,
@@ -27,7 +26,7 @@ pub fn run(args: SubmitArgs) -> Result<()> {
         .settings
         .overrides()?
         .into_iter()
-        .filter(|(k, _)| k.starts_with("cook."))
+        .filter(|(k, _)| k.starts_with("cook.") && k != "cook.max_placed_triangles")
         .map(|(k, v)| {
             let value = match v {
                 toml::Value::String(s) => s,
@@ -37,7 +36,7 @@ pub fn run(args: SubmitArgs) -> Result<()> {
         })
         .collect();
     let out_dir = client::output_dir(args.out_dir)?;
-    let client = client::Client::new(&args.server);
+    let client = args.server.client();
     for file in &args.files {
         let key = client.submit(file, &settings, &query, args.wait, &out_dir)?;
         println!("{}\t{key}", file.display());

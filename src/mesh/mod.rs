@@ -113,7 +113,7 @@ impl IngestLimits {
     pub(crate) fn check_placed(&self, placed: u64) -> Result<(), IngestError> {
         match placed > self.max_placed_triangles {
             true => Err(IngestError::TooLarge(format!(
-                "the scene places {placed} triangles, over cook.max_placed_triangles ({})",
+                "the file places {placed} triangles, over cook.max_placed_triangles ({})",
                 self.max_placed_triangles
             ))),
             false => Ok(()),
@@ -238,19 +238,23 @@ pub fn load_bytes(
     weld(raw)
 }
 
+/// The triangles as read. Scene formats check the limit before they place anything; the rest
+/// hold every triangle in their bytes, and are checked once read.
 fn load_raw(
     bytes: &[u8],
     format: Format,
     base_dir: Option<&Path>,
     limits: &IngestLimits,
 ) -> Result<RawMesh, IngestError> {
-    match format {
-        Format::Gltf => gltf_in::read(bytes, base_dir, limits),
-        Format::Fbx => fbx::read(bytes, limits),
-        Format::Obj => obj::read(bytes),
-        Format::Ply => ply::read(bytes),
-        Format::Stl => stl::read(bytes),
-    }
+    let raw = match format {
+        Format::Gltf => gltf_in::read(bytes, base_dir, limits)?,
+        Format::Fbx => fbx::read(bytes, limits)?,
+        Format::Obj => obj::read(bytes)?,
+        Format::Ply => ply::read(bytes)?,
+        Format::Stl => stl::read(bytes)?,
+    };
+    limits.check_placed(raw.triangles.len() as u64)?;
+    Ok(raw)
 }
 
 /// A named mesh inside a level file (an OBJ group, a glTF mesh), welded.

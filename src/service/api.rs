@@ -1,5 +1,6 @@
 //! The HTTP API (axum). Every error is JSON: `{"error":{"code":"...","message":"..."}}`.
 
+use super::auth::{Scope, Tokens};
 use super::{Service, SubmitError, Submitted};
 use crate::config::{self, ConfigError};
 use crate::key::cache_key;
@@ -31,6 +32,8 @@ pub struct AppState {
     pub metrics: PrometheusHandle,
     /// Turns true on shutdown, ending event streams.
     pub shutdown: watch::Receiver<bool>,
+    /// With `service.auth = "tokens"`, the tokens that may call.
+    pub tokens: Option<Arc<Tokens>>,
 }
 
 #[derive(OpenApi)]
@@ -57,9 +60,29 @@ pub struct AppState {
         JobError,
         crate::store::job::JobState,
         crate::store::job::JobKind
-    ))
+    )),
+    modifiers(&BearerTokens)
 )]
 pub struct ApiDoc;
+
+/// The bearer tokens of `service.auth = "tokens"`, as the document's security scheme.
+struct BearerTokens;
+
+impl utoipa::Modify for BearerTokens {
+    fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+        let scheme = HttpBuilder::new()
+            .scheme(HttpAuthScheme::Bearer)
+            .description(Some(
+                "With service.auth = \"tokens\": a token with the scope the endpoint needs (read: GET; cook: POST; admin: /metrics). /healthz is open.",
+            ))
+            .build();
+        openapi
+            .components
+            .get_or_insert_with(Default::default)
+            .add_security_scheme("bearer", SecurityScheme::Http(scheme));
+    }
+}
 
 pub fn router(state: AppState) -> axum::Router {
     axum::Router::new()
@@ -83,7 +106,59 @@ pub fn router(state: AppState) -> axum::Router {
                 "method not allowed here",
             )
         })
+        .layer(axum::middleware::from_fn_with_state(state.clone(), authorize))
         .with_state(state)
+}
+
+/// The scope a request needs; None for what stays open.
+fn scope_for(method: &axum::http::Method, path: &str) -> Option<Scope> {
+    match path {
+        "/healthz" => None,
+        "/metrics" => Some(Scope::Admin),
+        _ if method == axum::http::Method::POST => Some(Scope::Cook),
+        _ => Some(Scope::Read),
+    }
+}
+
+/// With tokens on, lets a request through only with a known bearer token that has the scope its
+/// endpoint needs: 401 without one, 403 with the wrong scope.
+async fn authorize(
+    State(state): State<AppState>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let Some(tokens) = &state.tokens else {
+        return next.run(request).await;
+    };
+    let Some(needed) = scope_for(request.method(), request.uri().path()) else {
+        return next.run(request).await;
+    };
+    let bearer = request
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "));
+    let refused = match bearer.map(|token| tokens.check(token.trim())) {
+        None => ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            "unauthorized",
+            "this endpoint needs a token: Authorization: Bearer <token>",
+        ),
+        Some(None) => ApiError::new(StatusCode::UNAUTHORIZED, "unauthorized", "the token is not known"),
+        Some(Some(entry)) if !entry.scopes.contains(&needed) => ApiError::new(
+            StatusCode::FORBIDDEN,
+            "forbidden",
+            format!("token `{}` lacks the `{}` scope", entry.name, needed.name()),
+        ),
+        Some(Some(_)) => return next.run(request).await,
+    };
+    let mut response = refused.into_response();
+    if response.status() == StatusCode::UNAUTHORIZED {
+        response
+            .headers_mut()
+            .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+    }
+    response
 }
 
 /// The answer to a submission.
@@ -250,6 +325,27 @@ fn job_settings(
         true => service.settings.clone(),
         false => config::load_over(&service.settings, &overrides).map_err(bad)?,
     };
+    let caps = [
+        (
+            "cook.resolution",
+            settings.cook.resolution,
+            "service.max_resolution",
+            service.settings.service.max_resolution,
+        ),
+        (
+            "cook.quad_grid",
+            settings.cook.quad_grid,
+            "service.max_quad_grid",
+            service.settings.service.max_quad_grid,
+        ),
+    ];
+    if let Some((key, value, cap, limit)) = caps.into_iter().find(|(_, value, _, limit)| value > limit) {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "over_limit",
+            format!("{key} = {value} is over this server's {cap} ({limit})"),
+        ));
+    }
     // A job that asks for a GPU this server lacks would only fail later.
     if settings.cook.device == crate::gpu::DeviceChoice::Gpu && crate::gpu::best_adapter_info().is_none() {
         return Err(ApiError::new(
@@ -546,11 +642,11 @@ fn submitted(key: &str, outcome: Result<Submitted, SubmitError>) -> Result<Respo
 }
 
 async fn find_job(service: &Service, id: &str) -> Result<Job, ApiError> {
-    service
-        .job(id)
-        .await
-        .map_err(ApiError::storage)?
-        .ok_or_else(|| ApiError::new(StatusCode::NOT_FOUND, "unknown_job", format!("no job {id}")))
+    let unknown = || ApiError::new(StatusCode::NOT_FOUND, "unknown_job", format!("no job {id}"));
+    if !crate::store::job::is_id(id) {
+        return Err(unknown());
+    }
+    service.job(id).await.map_err(ApiError::storage)?.ok_or_else(unknown)
 }
 
 #[utoipa::path(

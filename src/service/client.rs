@@ -70,10 +70,12 @@ impl Reply {
 pub struct Client {
     agent: ureq::Agent,
     server: String,
+    /// The `Authorization` header's value, when a token is given.
+    authorization: Option<String>,
 }
 
 impl Client {
-    pub fn new(server: &str) -> Client {
+    pub fn new(server: &str, token: Option<String>) -> Client {
         let agent = ureq::Agent::config_builder()
             .http_status_as_error(false)
             .timeout_global(Some(Duration::from_secs(600)))
@@ -82,6 +84,15 @@ impl Client {
         Client {
             agent,
             server: server.trim_end_matches('/').to_string(),
+            authorization: token.map(|t| format!("Bearer {t}")),
+        }
+    }
+
+    /// `request` with the token, if any.
+    fn authorized<B>(&self, request: ureq::RequestBuilder<B>) -> ureq::RequestBuilder<B> {
+        match &self.authorization {
+            Some(value) => request.header("Authorization", value),
+            None => request,
         }
     }
 
@@ -100,12 +111,12 @@ impl Client {
 
     fn get(&self, path: &str) -> Result<Reply, Exit> {
         let url = format!("{}{path}", self.server);
-        self.reply(self.agent.get(&url).call(), &url)
+        self.reply(self.authorized(self.agent.get(&url)).call(), &url)
     }
 
     fn head(&self, path: &str) -> Result<u16, Exit> {
         let url = format!("{}{path}", self.server);
-        Ok(self.reply(self.agent.head(&url).call(), &url)?.status)
+        Ok(self.reply(self.authorized(self.agent.head(&url)).call(), &url)?.status)
     }
 
     /// Writes the occluder of `key` to `out`.
@@ -149,8 +160,7 @@ impl Client {
         }
         let accepted = self
             .reply(
-                self.agent
-                    .post(&url)
+                self.authorized(self.agent.post(&url))
                     .content_type("application/octet-stream")
                     .send(&bytes[..]),
                 &name,

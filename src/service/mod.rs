@@ -7,6 +7,7 @@
 //! by a queued or running job gets that job, across every node that shares the store.
 
 pub mod api;
+pub mod auth;
 pub mod client;
 
 use crate::config::Settings;
@@ -628,8 +629,9 @@ async fn terminated() {
 
 /// Runs the HTTP API (and, unless `api_only`, the workers) until SIGTERM or Ctrl-C. Prints
 /// `listening on ADDR` once it accepts connections.
-pub async fn serve(settings: Settings, api_only: bool) -> anyhow::Result<()> {
+pub async fn serve(settings: Settings, api_only: bool, insecure_no_auth: bool) -> anyhow::Result<()> {
     use anyhow::Context;
+    let tokens = tokens_of(&settings, insecure_no_auth)?;
     let metrics = metrics_exporter_prometheus::PrometheusBuilder::new()
         .set_buckets(&[
             0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0,
@@ -647,7 +649,11 @@ pub async fn serve(settings: Settings, api_only: bool) -> anyhow::Result<()> {
         service: Arc::clone(&service),
         metrics,
         shutdown: stopped,
+        tokens: tokens.clone(),
     });
+    if let Some(tokens) = tokens {
+        tokio::spawn(reload_on_hangup(tokens));
+    }
     let listener = tokio::net::TcpListener::bind(&listen)
         .await
         .with_context(|| format!("cannot listen on {listen}"))?;
@@ -663,6 +669,44 @@ pub async fn serve(settings: Settings, api_only: bool) -> anyhow::Result<()> {
     }
     service.store.flush().await?;
     Ok(())
+}
+
+/// The tokens that may call, with `service.auth = "tokens"`. With `none`, only a loopback
+/// address is served, unless `insecure_no_auth`.
+fn tokens_of(settings: &Settings, insecure_no_auth: bool) -> anyhow::Result<Option<Arc<auth::Tokens>>> {
+    let service = &settings.service;
+    match service.auth {
+        crate::config::AuthMode::Tokens if service.tokens_file.is_empty() => {
+            anyhow::bail!("service.auth = \"tokens\" needs service.tokens_file (see `occluder-cook token new`)")
+        }
+        crate::config::AuthMode::Tokens => Ok(Some(Arc::new(
+            auth::Tokens::open(std::path::Path::new(&service.tokens_file)).map_err(anyhow::Error::msg)?,
+        ))),
+        crate::config::AuthMode::None if !insecure_no_auth && !is_loopback(&service.listen) => anyhow::bail!(
+            "service.listen = {} is reachable from other machines and service.auth = \"none\": set service.auth = \"tokens\" or pass --insecure-no-auth",
+            service.listen
+        ),
+        crate::config::AuthMode::None => Ok(None),
+    }
+}
+
+/// Whether `listen` (host:port) is a loopback address.
+fn is_loopback(listen: &str) -> bool {
+    match listen.parse::<std::net::SocketAddr>() {
+        Ok(address) => address.ip().is_loopback(),
+        Err(_) => listen.rsplit_once(':').is_some_and(|(host, _)| host == "localhost"),
+    }
+}
+
+/// Reads the tokens file again on each SIGHUP.
+async fn reload_on_hangup(tokens: Arc<auth::Tokens>) {
+    use tokio::signal::unix::{SignalKind, signal};
+    let Ok(mut hangups) = signal(SignalKind::hangup()) else {
+        return;
+    };
+    while hangups.recv().await.is_some() {
+        tokens.reload();
+    }
 }
 
 /// Runs workers only, on the NATS store, until SIGTERM or Ctrl-C. Prints `worker ready` once it

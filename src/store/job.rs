@@ -75,3 +75,9 @@ pub fn now_ms() -> u64 {
 pub fn new_id() -> String {
     format!("{:012x}{:016x}", now_ms(), fastrand::u64(..))
 }
+
+/// Whether `id` has the shape [`new_id`] gives: 28 lowercase hex digits. Anything else names no
+/// job, and is never sent to a store (a NATS key cannot hold every character).
+pub fn is_id(id: &str) -> bool {
+    id.len() == 28 && id.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f'))
+}

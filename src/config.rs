@@ -44,6 +44,7 @@ pub struct ServiceSettings {
     pub tokens_file: String,
     pub max_resolution: usize,
     pub max_quad_grid: usize,
+    pub job_timeout_s: f64,
 }
 
 /// Who may call the service.
@@ -276,6 +277,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("service.max_body_bytes", v.max_body_bytes as f64, 1024.0, 4e9)?;
     check("service.max_resolution", v.max_resolution as f64, 4.0, 1024.0)?;
     check("service.max_quad_grid", v.max_quad_grid as f64, 8.0, 4096.0)?;
+    check("service.job_timeout_s", v.job_timeout_s, 1.0, 86400.0)?;
     check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
     check("service.ack_wait_s", v.ack_wait_s, 1.0, 86_400.0)?;
     check("service.max_deliver", v.max_deliver as f64, 1.0, 1000.0)?;

@@ -61,8 +61,19 @@ pub fn last_stage() -> Option<&'static str> {
     STAGES.get(LAST_STAGE.load(Ordering::Relaxed)).copied()
 }
 
-/// Told each stage as it starts, with the share of the stages done (0..1).
-pub type Progress<'a> = &'a (dyn Fn(&str, f64) + Sync);
+/// Told each stage as it starts, with the share of the stages done (0..1). An error stops the
+/// cook there, with the error's text as the reason (a time limit, a cancelled job).
+pub type Progress<'a> = &'a (dyn Fn(&str, f64) -> Result<(), String> + Sync);
+
+/// Why a cook did not finish.
+#[derive(Debug, thiserror::Error)]
+pub enum CookError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// Its caller stopped it, as a stage was about to start.
+    #[error("stopped before stage `{stage}`: {reason}")]
+    Stopped { stage: String, reason: String },
+}
 
 /// Cooks an ingested mesh. `ingest_ms` is the time the caller spent reading it. Fails only when
 /// the GPU it was told to use is missing or fails.
@@ -72,8 +83,8 @@ pub fn cook(
     ingest_ms: f64,
     settings: &Settings,
     with_eval: bool,
-) -> Result<Cooked, GpuError> {
-    cook_with_progress(mesh, ingest, ingest_ms, settings, with_eval, &|_, _| {})
+) -> Result<Cooked, CookError> {
+    cook_with_progress(mesh, ingest, ingest_ms, settings, with_eval, &|_, _| Ok(()))
 }
 
 /// [`cook`], telling `progress` each stage as it starts.
@@ -84,12 +95,12 @@ pub fn cook_with_progress(
     settings: &Settings,
     with_eval: bool,
     progress: Progress,
-) -> Result<Cooked, GpuError> {
+) -> Result<Cooked, CookError> {
     let cook = &settings.cook;
     let uses = |shape: Shape| cook.shapes.contains(&shape);
     let mut run = Run::new(ingest_ms, progress);
-    let key = run.stage("key", || cache_key(&mesh, cook));
-    let topology = run.stage("orient", || orient_closed_components(&mut mesh));
+    let key = run.stage("key", || cache_key(&mesh, cook))?;
+    let topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
     run.open_device(cook.device)?;
     let grid = fit_grid(&mesh, cook.resolution);
     let surface = run.on_device("surface", |gpu| voxel::surface(&mesh, &grid, gpu))?;
@@ -97,7 +108,7 @@ pub fn cook_with_progress(
         voxel::classify(cook.inside, &mesh, &topology, &grid, &surface, &cook.cpsv(), gpu)
     })?;
     run.note_undecided(inside.cpsv.as_ref());
-    let mut inner = run.stage("inner", || inner_voxels(&inside.solid, &surface));
+    let mut inner = run.stage("inner", || inner_voxels(&inside.solid, &surface))?;
     // Only open meshes can show their inside.
     let open_views = match topology.boundary.is_empty() {
         true => None,
@@ -108,33 +119,33 @@ pub fn cook_with_progress(
         Some(views) => run.on_device("exposure-voxels", |gpu| views.remove_exposed(&grid, &mut inner, gpu))?,
     };
     let voxel_boxes = match uses(Shape::Boxes) {
-        true => run.stage("boxes", || boxes::expand(&inner, grid.dims, &expansion(cook))),
+        true => run.stage("boxes", || boxes::expand(&inner, grid.dims, &expansion(cook)))?,
         false => Vec::new(),
     };
     // Refinement and quads both look triangles up through it.
-    let field = run.stage("refine", || WindingField::new(&mesh, &topology.boundary));
+    let field = run.stage("refine", || WindingField::new(&mesh, &topology.boundary))?;
     let refined = run.stage("refine", || {
         refine_boxes(&mesh, &grid, &field, &inside.solid, &voxel_boxes, cook.refine)
-    });
+    })?;
     // Each candidate with the index of the voxel box it came from.
     let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
         None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),
-        Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined)),
+        Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
     };
     let quads_found = match uses(Shape::Quads) {
-        true => run.stage("quads", || find_quads(&mesh, &topology, &grid, &field, &inner, cook)),
+        true => run.stage("quads", || find_quads(&mesh, &topology, &grid, &field, &inner, cook))?,
         false => Vec::new(),
     };
     let quad_count = quads_found.len();
     let (mut panels, quads_shown) = match &open_views {
         None => (quads_found, [0, 0]),
-        Some(views) => run.stage("exposure-quads", || unexposed_quads(views, quads_found)),
+        Some(views) => run.stage("exposure-quads", || unexposed_quads(views, quads_found))?,
     };
     if uses(Shape::Patches) {
-        panels.extend(run.stage("patches", || find_patches(&mesh, &topology, cook)));
+        panels.extend(run.stage("patches", || find_patches(&mesh, &topology, cook))?);
     }
     // Selection merges as it goes; its last merge is the solid part of the occluder.
-    let selection = run.stage("select+merge", || select_pieces(&mesh, &box_candidates, &panels, cook));
+    let selection = run.stage("select+merge", || select_pieces(&mesh, &box_candidates, &panels, cook))?;
     let occluder = Occluder {
         solid: selection.solid,
         panels: selection.panels.iter().map(|&i| panels[i]).collect(),
@@ -329,11 +340,15 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Runs `stage`, reporting it as it starts and timing it.
-    fn stage<T>(&mut self, stage: &str, work: impl FnOnce() -> T) -> T {
+    /// Runs `stage`, reporting it as it starts and timing it, unless the progress callback
+    /// stops the cook there.
+    fn stage<T>(&mut self, stage: &str, work: impl FnOnce() -> T) -> Result<T, CookError> {
         let done = STAGES.iter().position(|s| *s == stage).unwrap_or(0);
         mark_stage(stage);
-        (self.progress)(stage, done as f64 / STAGES.len() as f64);
+        (self.progress)(stage, done as f64 / STAGES.len() as f64).map_err(|reason| CookError::Stopped {
+            stage: stage.to_string(),
+            reason,
+        })?;
         let start = Instant::now();
         let out = work();
         self.timings.add(stage, start.elapsed().as_secs_f64() * 1e3);
@@ -342,7 +357,7 @@ impl<'a> Run<'a> {
             Some(Err(e)) => tracing::warn!(stage, "the device's pass times could not be read: {e}"),
             _ => {}
         }
-        out
+        Ok(out)
     }
 
     /// Runs a stage with a GPU twin on the device when there is one; where the device cannot do
@@ -351,30 +366,30 @@ impl<'a> Run<'a> {
         &mut self,
         stage: &'static str,
         mut work: impl FnMut(Option<&Gpu>) -> Result<T, GpuError>,
-    ) -> Result<T, GpuError> {
+    ) -> Result<T, CookError> {
         let gpu = self.gpu.clone();
         let (out, fallback) = self.stage(stage, || match work(gpu.as_deref()) {
             Err(GpuError::Unsupported(why)) if gpu.is_some() => (work(None), Some(why)),
             out => (out, None),
-        });
+        })?;
         match fallback {
             Some(why) => self.notes.push(format!("{stage} ran on the CPU: {why}")),
             None if gpu.is_some() => self.gpu_stages.push(stage),
             None => {}
         }
-        out
+        Ok(out?)
     }
 
     /// Opens the device `choice` asks for (once a process) and builds the pipelines of the
     /// stages a cook runs there.
-    fn open_device(&mut self, choice: gpu::DeviceChoice) -> Result<(), GpuError> {
+    fn open_device(&mut self, choice: gpu::DeviceChoice) -> Result<(), CookError> {
         let placement = self.stage("device", || {
             let placement = gpu::for_choice(choice)?;
             if let Some(gpu) = &placement.gpu {
                 gpu.build_pipelines(&PIPELINES.concat())?;
             }
             Ok::<_, GpuError>(placement)
-        })?;
+        })??;
         self.gpu = placement.gpu.map(|g| Arc::new(g.timed()));
         self.notes.extend(placement.why_cpu);
         Ok(())
@@ -431,11 +446,11 @@ impl<'a> Run<'a> {
         topology: &Topology,
         occluder: &Occluder,
         settings: &Settings,
-    ) -> Result<Quality, GpuError> {
+    ) -> Result<Quality, CookError> {
         if !settings.eval.draws_on_gpu() {
-            return self.stage("eval", || {
+            return Ok(self.stage("eval", || {
                 evaluate(mesh, &topology.boundary, &occluder.mesh(), &settings.eval, None)
-            });
+            })??);
         }
         self.on_device("eval", |gpu| {
             evaluate(mesh, &topology.boundary, &occluder.mesh(), &settings.eval, gpu)
@@ -472,7 +487,7 @@ mod tests {
                 return;
             }
         };
-        let mut run = Run::new(0.0, &|_, _| {});
+        let mut run = Run::new(0.0, &|_, _| Ok(()));
         run.gpu = Some(gpu);
         let refused = run.on_device("exposure-voxels", |gpu| match gpu {
             Some(_) => Err(GpuError::Unsupported("too large for one binding".into())),

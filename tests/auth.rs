@@ -82,6 +82,24 @@ fn tokens_guard_every_endpoint_but_healthz_and_reload_without_a_restart() {
     assert_eq!(get(&format!("{base}/healthz"), &[]).status, 200);
     let accepted = with_token("POST", &format!("{base}/v1/cook"), Some(&cook));
     assert_eq!(accepted.status, 202, "{}", String::from_utf8_lossy(&accepted.body));
+    // Only the token that filed a job, or an admin, may cancel it.
+    let job_url = format!("{base}/v1/jobs/{}", accepted.json()["job"].as_str().unwrap());
+    let cancel = |token: &str| {
+        reply(
+            agent()
+                .delete(&job_url)
+                .header("Authorization", &format!("Bearer {token}"))
+                .call(),
+        )
+    };
+    let other = new_token(&file, "other", "cook");
+    let admin = new_token(&file, "ops", "admin");
+    std::thread::sleep(Duration::from_millis(1100));
+    cancel(&reader).assert_error(403, "forbidden");
+    cancel(&other).assert_error(403, "forbidden");
+    // Cancelled (200), or already done (409): either way let through.
+    assert!(matches!(cancel(&admin).status, 200 | 409));
+    assert!(matches!(cancel(&cook).status, 200 | 409));
 
     // A token added to the file works without a restart; one removed stops working.
     let late = new_token(&file, "late", "read");

@@ -527,3 +527,72 @@ fn a_gpu_job_on_a_server_without_a_gpu_is_refused_up_front() {
     let ok = post(&format!("{cook}?device=auto"), Some("model/obj"), &small_mesh(0));
     assert_eq!(ok.status, 202, "{}", String::from_utf8_lossy(&ok.body));
 }
+
+/// A job over service.job_timeout_s fails with `timeout`; DELETE cancels a queued job before it
+/// starts and a running one at its next stage; the worker goes on with the next job.
+#[test]
+fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
+    let dir = data_dir("stop");
+    let server = Server::start(
+        &dir,
+        &[
+            "service.workers=1",
+            "service.max_resolution=512",
+            "service.job_timeout_s=1",
+        ],
+    );
+    let base = &server.base;
+    let slow_mesh = obj_text(&torus(1.0, 0.45, 48, 24));
+    let slow = post(&format!("{base}/v1/cook?resolution=384"), Some("model/obj"), &slow_mesh).json();
+    let timed_out = wait_for(base, slow["job"].as_str().unwrap(), Duration::from_secs(120));
+    assert_eq!(timed_out["error"]["code"], "timeout", "{timed_out}");
+    let quick = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(20)).json();
+    assert_eq!(
+        wait_for(base, quick["job"].as_str().unwrap(), Duration::from_secs(60))["state"],
+        "done"
+    );
+    assert!(server.terminate().success());
+
+    let server = Server::start(&dir, &["service.workers=1", "service.max_resolution=512"]);
+    let base = &server.base;
+    let delete = |job: &str| reply(agent().delete(&format!("{base}/v1/jobs/{job}")).call());
+    let running = post(&format!("{base}/v1/cook?resolution=384"), Some("model/obj"), &slow_mesh).json();
+    let running = running["job"].as_str().unwrap().to_string();
+    let queued = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(21)).json();
+    let queued = queued["job"].as_str().unwrap().to_string();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while get(&format!("{base}/v1/jobs/{running}"), &[]).json()["state"] != "running" {
+        assert!(Instant::now() < deadline, "the slow job never started");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let cancelled = delete(&queued);
+    assert_eq!(cancelled.status, 200, "{}", String::from_utf8_lossy(&cancelled.body));
+    assert_eq!(cancelled.json()["error"]["code"], "cancelled");
+    let start = Instant::now();
+    assert_eq!(delete(&running).status, 200);
+    let stopped = wait_for(base, &running, Duration::from_secs(60));
+    assert_eq!(
+        (stopped["state"].as_str(), stopped["error"]["code"].as_str()),
+        (Some("failed"), Some("cancelled"))
+    );
+    println!(
+        "a running job stopped {:.2} s after its DELETE",
+        start.elapsed().as_secs_f64()
+    );
+    assert_eq!(
+        get(&format!("{base}/v1/jobs/{queued}"), &[]).json()["error"]["code"],
+        "cancelled"
+    );
+    delete(&running).assert_error(409, "finished");
+    delete(&"0".repeat(28)).assert_error(404, "unknown_job");
+    let next = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(22)).json();
+    assert_eq!(
+        wait_for(base, next["job"].as_str().unwrap(), Duration::from_secs(60))["state"],
+        "done"
+    );
+    // The cancelled mesh can be sent again: it is cooked anew.
+    let again = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(21));
+    assert_eq!(again.status, 202, "{}", String::from_utf8_lossy(&again.body));
+    assert!(server.terminate().success());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -59,7 +59,7 @@ pub enum LevelError {
     #[error("cache: {0}")]
     Cache(String),
     #[error(transparent)]
-    Gpu(#[from] crate::gpu::GpuError),
+    Cook(#[from] crate::cook::CookError),
 }
 
 /// A level with every instance checked: its mesh source and its matrix.

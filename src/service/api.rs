@@ -46,6 +46,7 @@ pub struct AppState {
         submit_cook,
         submit_level,
         job_status,
+        cancel_job,
         job_events,
         occluder_glb,
         occluder_report,
@@ -91,7 +92,7 @@ pub fn router(state: AppState) -> axum::Router {
             "/v1/levels",
             post(submit_level).layer(DefaultBodyLimit::max(state.service.settings.service.max_body_bytes)),
         )
-        .route("/v1/jobs/{id}", get(job_status))
+        .route("/v1/jobs/{id}", get(job_status).delete(cancel_job))
         .route("/v1/jobs/{id}/events", get(job_events))
         .route("/v1/occluders/{key}", get(occluder_glb))
         .route("/v1/occluders/{key}/report", get(occluder_report))
@@ -110,29 +111,42 @@ pub fn router(state: AppState) -> axum::Router {
         .with_state(state)
 }
 
-/// The scope a request needs; None for what stays open.
-fn scope_for(method: &axum::http::Method, path: &str) -> Option<Scope> {
+/// The scopes that may make a request, any one of them; none for what stays open.
+fn scopes_for(method: &axum::http::Method, path: &str) -> &'static [Scope] {
+    use axum::http::Method;
     match path {
-        "/healthz" => None,
-        "/metrics" => Some(Scope::Admin),
-        _ if method == axum::http::Method::POST => Some(Scope::Cook),
-        _ => Some(Scope::Read),
+        "/healthz" => &[],
+        "/metrics" => &[Scope::Admin],
+        _ if method == Method::POST => &[Scope::Cook],
+        // Cancelling: its own jobs with `cook`, any with `admin`.
+        _ if method == Method::DELETE => &[Scope::Cook, Scope::Admin],
+        _ => &[Scope::Read],
     }
 }
+
+/// The name of the token that files a job, when the service takes tokens.
+fn owner_of(caller: &Option<axum::Extension<Caller>>) -> Option<String> {
+    caller.as_ref().map(|axum::Extension(Caller(entry))| entry.name.clone())
+}
+
+/// The token a request came with, once let through.
+#[derive(Clone)]
+struct Caller(super::auth::Entry);
 
 /// With tokens on, lets a request through only with a known bearer token that has the scope its
 /// endpoint needs: 401 without one, 403 with the wrong scope.
 async fn authorize(
     State(state): State<AppState>,
-    request: axum::extract::Request,
+    mut request: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
     let Some(tokens) = &state.tokens else {
         return next.run(request).await;
     };
-    let Some(needed) = scope_for(request.method(), request.uri().path()) else {
+    let needed = scopes_for(request.method(), request.uri().path());
+    if needed.is_empty() {
         return next.run(request).await;
-    };
+    }
     let bearer = request
         .headers()
         .get(header::AUTHORIZATION)
@@ -145,12 +159,15 @@ async fn authorize(
             "this endpoint needs a token: Authorization: Bearer <token>",
         ),
         Some(None) => ApiError::new(StatusCode::UNAUTHORIZED, "unauthorized", "the token is not known"),
-        Some(Some(entry)) if !entry.scopes.contains(&needed) => ApiError::new(
+        Some(Some(entry)) if !needed.iter().any(|scope| entry.scopes.contains(scope)) => ApiError::new(
             StatusCode::FORBIDDEN,
             "forbidden",
-            format!("token `{}` lacks the `{}` scope", entry.name, needed.name()),
+            format!("token `{}` lacks the `{}` scope", entry.name, needed[0].name()),
         ),
-        Some(Some(_)) => return next.run(request).await,
+        Some(Some(entry)) => {
+            request.extensions_mut().insert(Caller(entry));
+            return next.run(request).await;
+        }
     };
     let mut response = refused.into_response();
     if response.status() == StatusCode::UNAUTHORIZED {
@@ -383,6 +400,7 @@ fn job_settings(
 )]
 async fn submit_cook(
     State(state): State<AppState>,
+    caller: Option<axum::Extension<Caller>>,
     Query(params): Query<Vec<(String, String)>>,
     headers: HeaderMap,
     body: Body,
@@ -445,7 +463,10 @@ async fn submit_cook(
         format: format.name().into(),
         bytes: bytes.to_vec(),
     };
-    submitted(&key, service.submit(&key, input, settings_json).await)
+    submitted(
+        &key,
+        service.submit(&key, input, settings_json, owner_of(&caller)).await,
+    )
 }
 
 fn bad_level(message: impl Into<String>) -> ApiError {
@@ -483,6 +504,7 @@ fn multipart_error(e: MultipartError) -> ApiError {
 )]
 async fn submit_level(
     State(state): State<AppState>,
+    caller: Option<axum::Extension<Caller>>,
     Query(params): Query<Vec<(String, String)>>,
     multipart: Result<Multipart, MultipartRejection>,
 ) -> Result<Response, ApiError> {
@@ -531,7 +553,10 @@ async fn submit_level(
         format: super::LEVEL_FORMAT.into(),
         bytes,
     };
-    submitted(&key, service.submit(&key, input, settings_json).await)
+    submitted(
+        &key,
+        service.submit(&key, input, settings_json, owner_of(&caller)).await,
+    )
 }
 
 /// A level upload's manifest and its mesh parts by name; every part must be used by an instance.
@@ -656,6 +681,42 @@ async fn find_job(service: &Service, id: &str) -> Result<Job, ApiError> {
 )]
 async fn job_status(State(state): State<AppState>, Path(id): Path<String>) -> Result<Json<Job>, ApiError> {
     Ok(Json(find_job(&state.service, &id).await?))
+}
+
+#[utoipa::path(
+    delete, path = "/v1/jobs/{id}",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Cancelled: the job as recorded, failed with code `cancelled`", body = Job),
+        (status = 403, description = "With tokens: another token's job, and no `admin` scope", body = ErrorBody),
+        (status = 404, body = ErrorBody),
+        (status = 409, description = "The job has already ended", body = ErrorBody)
+    )
+)]
+async fn cancel_job(
+    State(state): State<AppState>,
+    caller: Option<axum::Extension<Caller>>,
+    Path(id): Path<String>,
+) -> Result<Json<Job>, ApiError> {
+    let job = find_job(&state.service, &id).await?;
+    if let Some(axum::Extension(Caller(entry))) = &caller
+        && !entry.scopes.contains(&Scope::Admin)
+        && job.owner.as_deref() != Some(entry.name.as_str())
+    {
+        return Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            "forbidden",
+            format!("job {id} was filed by another token: only its own or an `admin` token may cancel it"),
+        ));
+    }
+    if job.state.is_finished() {
+        return Err(ApiError::new(
+            StatusCode::CONFLICT,
+            "finished",
+            format!("job {id} has already ended ({})", job.state.name()),
+        ));
+    }
+    Ok(Json(state.service.cancel(job).await.map_err(ApiError::storage)?))
 }
 
 #[utoipa::path(

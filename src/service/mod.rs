@@ -11,7 +11,7 @@ pub mod auth;
 pub mod client;
 
 use crate::config::Settings;
-use crate::cook::cook_with_progress;
+use crate::cook::{CookError, cook_with_progress};
 use crate::store::job::{self, Job, JobError, JobKind, JobState, now_ms};
 use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreResult};
 use std::collections::HashMap;
@@ -26,11 +26,20 @@ pub struct Service {
     pub settings: Settings,
     /// Jobs this process's workers are running, by id, with their latest progress.
     live: Mutex<HashMap<String, Job>>,
+    /// Set to stop a running job at its next stage (DELETE), by id.
+    stops: Mutex<HashMap<String, std::sync::Weak<std::sync::atomic::AtomicBool>>>,
     cache: Mutex<Lru>,
     /// Keys of uploads seen before, by the BLAKE3 of their bytes, format and settings: a repeat
     /// upload skips parsing.
     seen: Mutex<HashMap<blake3::Hash, String>>,
 }
+
+/// Raised to stop a running job at its next stage.
+type Stop = Arc<std::sync::atomic::AtomicBool>;
+
+/// Error codes of jobs stopped on purpose.
+const TIMEOUT: &str = "timeout";
+const CANCELLED: &str = "cancelled";
 
 /// The input format of a level job: its manifest, every mesh given by key.
 pub const LEVEL_FORMAT: &str = "level";
@@ -105,6 +114,7 @@ impl Service {
             store,
             settings,
             live: Mutex::new(HashMap::new()),
+            stops: Mutex::new(HashMap::new()),
             cache: Mutex::new(Lru::default()),
             seen: Mutex::new(HashMap::new()),
         });
@@ -119,7 +129,13 @@ impl Service {
     }
 
     /// Files a job for `input` under `key`, unless the result exists or a job holds the key.
-    pub async fn submit(&self, key: &str, input: Input, settings: serde_json::Value) -> Result<Submitted, SubmitError> {
+    pub async fn submit(
+        &self,
+        key: &str,
+        input: Input,
+        settings: serde_json::Value,
+        owner: Option<String>,
+    ) -> Result<Submitted, SubmitError> {
         if let Some(meta) = self.result_meta(key).await? {
             metrics::counter!("occluder_cache_hits_total").increment(1);
             return Ok(Submitted::Cached(meta.job));
@@ -142,6 +158,7 @@ impl Service {
             created_ms: now,
             updated_ms: now,
             attempts: 0,
+            owner,
         };
         // Claim the key first, so that an identical submission arriving now, on any node, joins
         // this job. A claim left by a job that has ended (its node died) is taken over.
@@ -264,7 +281,8 @@ impl Service {
             return Ok(None);
         };
         let settings = self.store.job(&meta.job).await?.map(|j| j.settings).unwrap_or_default();
-        match self.submit(key, input, settings).await {
+        // Remade by the service itself: no token owns it.
+        match self.submit(key, input, settings, None).await {
             Ok(Submitted::Queued(id)) | Ok(Submitted::Cached(id)) => Ok(Some(id)),
             Err(SubmitError::QueueFull(_)) => Ok(None),
             Err(SubmitError::Store(e)) => Err(e),
@@ -329,8 +347,8 @@ impl Service {
             if let Err(e) = self.store.put_job(&job).await {
                 tracing::error!(job = job.id, error = %e, "cannot record the job as running");
             }
-            let (progress, tending) = self.tend(&job, Arc::clone(&delivery));
-            let cooked = self.cook(&job, progress).await;
+            let (progress, tending, stop) = self.tend(&job, Arc::clone(&delivery));
+            let cooked = self.cook(&job, progress, stop).await;
             let stored = match cooked {
                 Ok((glb, report)) => {
                     let meta = ResultMeta {
@@ -387,9 +405,13 @@ impl Service {
         self.update_gauges().await;
     }
 
-    /// While a job runs: writes its progress where other nodes read it, and keeps its delivery
-    /// alive. Returns where the cook sends progress, and the task to abort at the end.
-    fn tend(&self, job: &Job, delivery: Arc<dyn Delivery>) -> (watch::Sender<Job>, tokio::task::JoinHandle<()>) {
+    /// While a job runs: writes its progress where other nodes read it, keeps its delivery
+    /// alive, and raises its stop flag once its record says another node cancelled it. Returns
+    /// where the cook sends progress, the task to abort at the end, and the stop flag.
+    fn tend(&self, job: &Job, delivery: Arc<dyn Delivery>) -> (watch::Sender<Job>, tokio::task::JoinHandle<()>, Stop) {
+        let id = job.id.clone();
+        let stop = self.stop_flag(&id);
+        let raise = Arc::clone(&stop);
         let (progress, mut updates) = watch::channel(job.clone());
         let store = Arc::clone(&self.store);
         let beat = Duration::from_secs_f64(self.settings.service.ack_wait_s / 3.0);
@@ -410,15 +432,25 @@ impl Service {
                         if let Err(e) = delivery.keep_alive().await {
                             tracing::warn!(error = %e, "cannot keep the job alive on the queue");
                         }
+                        if let Ok(Some(recorded)) = store.job(&id).await
+                            && recorded.error.is_some_and(|e| e.code == CANCELLED)
+                        {
+                            raise.store(true, std::sync::atomic::Ordering::Relaxed);
+                        }
                     }
                 }
             }
         });
-        (progress, task)
+        (progress, task, stop)
     }
 
     /// Ingests and cooks on a blocking thread; a panic fails this job only.
-    async fn cook(self: &Arc<Self>, job: &Job, progress: watch::Sender<Job>) -> Result<(Vec<u8>, Vec<u8>), JobError> {
+    async fn cook(
+        self: &Arc<Self>,
+        job: &Job,
+        progress: watch::Sender<Job>,
+        stop: Stop,
+    ) -> Result<(Vec<u8>, Vec<u8>), JobError> {
         let fail = |code: &str, message: String| JobError {
             code: code.into(),
             message,
@@ -438,15 +470,36 @@ impl Service {
         }
         let service = Arc::clone(self);
         let running = job.clone();
+        let limit = self.settings.service.job_timeout_s;
         let work = tokio::task::spawn_blocking(move || {
             let start = std::time::Instant::now();
             let (mesh, stats) = input
                 .load(&settings.cook.ingest_limits())
                 .map_err(|e| fail("bad_mesh", e.to_string()))?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
-            let progress = |stage: &str, done: f64| service.set_progress(&running, &progress, stage, done);
-            let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress)
-                .map_err(|e| fail("gpu", e.to_string()))?;
+            let progress = |stage: &str, done: f64| {
+                if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    return Err(CANCELLED.to_string());
+                }
+                if start.elapsed().as_secs_f64() > limit {
+                    return Err(TIMEOUT.to_string());
+                }
+                service.set_progress(&running, &progress, stage, done);
+                Ok(())
+            };
+            let cooked =
+                cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress).map_err(|e| match e {
+                    CookError::Stopped { stage, reason } if reason == TIMEOUT => fail(
+                        TIMEOUT,
+                        format!(
+                            "the job ran past service.job_timeout_s ({limit} s) and stopped before stage `{stage}`"
+                        ),
+                    ),
+                    CookError::Stopped { stage, reason } => {
+                        fail(&reason, format!("cancelled; stopped before stage `{stage}`"))
+                    }
+                    CookError::Gpu(e) => fail("gpu", e.to_string()),
+                })?;
             for (stage, ms) in &cooked.report.timings_ms.0 {
                 metrics::histogram!("occluder_cook_stage_seconds", "stage" => stage.clone()).record(ms / 1e3);
             }
@@ -458,6 +511,40 @@ impl Service {
             Ok(result) => result,
             Err(e) => Err(fail("panic", format!("the cook crashed: {e}"))),
         }
+    }
+
+    /// The flag that stops job `id` at its next stage, made now. The map keeps it only while
+    /// the job's cook holds it: the flags of ended jobs go as the next one is made.
+    fn stop_flag(&self, id: &str) -> Stop {
+        let flag = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let mut stops = self.stops.lock().unwrap();
+        stops.retain(|_, held| held.strong_count() > 0);
+        stops.insert(id.to_string(), Arc::downgrade(&flag));
+        flag
+    }
+
+    /// Cancels a job that has not finished: it ends `failed` with code `cancelled`. A queued job
+    /// never starts; one running here stops at its next stage; one running on another node
+    /// stops when that node next reads its record. Returns the job as recorded.
+    pub async fn cancel(&self, mut job: Job) -> StoreResult<Job> {
+        job.state = JobState::Failed;
+        job.error = Some(JobError {
+            code: CANCELLED.into(),
+            message: "cancelled by DELETE /v1/jobs/{id}".replace("{id}", &job.id),
+        });
+        job.updated_ms = now_ms();
+        self.store.put_job(&job).await?;
+        if let Some(stop) = self
+            .stops
+            .lock()
+            .unwrap()
+            .get(&job.id)
+            .and_then(std::sync::Weak::upgrade)
+        {
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        metrics::counter!("occluder_jobs_cancelled_total").increment(1);
+        Ok(job)
     }
 
     fn set_progress(&self, running: &Job, progress: &watch::Sender<Job>, stage: &str, done: f64) {

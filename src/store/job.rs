@@ -62,6 +62,9 @@ pub struct Job {
     pub updated_ms: u64,
     /// Times a worker has started it (a restart runs unfinished jobs again).
     pub attempts: u32,
+    /// The name of the token that filed it, when the service takes tokens: who may cancel it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub owner: Option<String>,
 }
 
 /// Milliseconds since the Unix epoch.

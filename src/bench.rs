@@ -76,7 +76,7 @@ pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<Be
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
             let start = Instant::now();
-            let cooked = load_file(path, &settings.cook.ingest_limits())
+            let cooked = load_file(path, &settings.ingest_limits())
                 .map_err(|e| e.to_string())
                 .and_then(|(mesh, stats)| {
                     let ingest_ms = start.elapsed().as_secs_f64() * 1e3;

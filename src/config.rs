@@ -45,6 +45,7 @@ pub struct ServiceSettings {
     pub max_resolution: usize,
     pub max_quad_grid: usize,
     pub job_timeout_s: f64,
+    pub max_parse_bytes: u64,
 }
 
 /// Who may call the service.
@@ -104,11 +105,14 @@ impl CookSettings {
             votes: self.cpsv_votes,
         }
     }
+}
 
+impl Settings {
     /// What ingest may allocate for a mesh.
     pub fn ingest_limits(&self) -> crate::mesh::IngestLimits {
         crate::mesh::IngestLimits {
-            max_placed_triangles: self.max_placed_triangles,
+            max_placed_triangles: self.cook.max_placed_triangles,
+            max_parse_bytes: self.service.max_parse_bytes,
         }
     }
 }
@@ -278,6 +282,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("service.max_resolution", v.max_resolution as f64, 4.0, 1024.0)?;
     check("service.max_quad_grid", v.max_quad_grid as f64, 8.0, 4096.0)?;
     check("service.job_timeout_s", v.job_timeout_s, 1.0, 86400.0)?;
+    check("service.max_parse_bytes", v.max_parse_bytes as f64, 1048576.0, 1e13)?;
     check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
     check("service.ack_wait_s", v.ack_wait_s, 1.0, 86_400.0)?;
     check("service.max_deliver", v.max_deliver as f64, 1.0, 1000.0)?;

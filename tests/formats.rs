@@ -69,6 +69,7 @@ fn ply_in_every_encoding_gives_the_cube_with_quads_fanned() {
     }
     let tight = IngestLimits {
         max_placed_triangles: 11,
+        ..IngestLimits::default()
     };
     let refused = load_bytes(&ply_cube("ascii"), Format::Ply, None, &tight).map(|_| ());
     assert!(
@@ -76,6 +77,17 @@ fn ply_in_every_encoding_gives_the_cube_with_quads_fanned() {
             .expect_err("12 triangles")
             .to_string()
             .contains("over cook.max_placed_triangles")
+    );
+    let small = IngestLimits {
+        max_parse_bytes: 1000,
+        ..IngestLimits::default()
+    };
+    let refused = load_bytes(&ply_cube("ascii"), Format::Ply, None, &small).map(|_| ());
+    assert!(
+        refused
+            .expect_err("1,920 bytes")
+            .to_string()
+            .contains("over service.max_parse_bytes")
     );
 }
 

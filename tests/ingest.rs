@@ -344,6 +344,7 @@ fn a_gltf_node_graph_that_reuses_nodes_is_refused_before_expanding() {
     );
     let tight = IngestLimits {
         max_placed_triangles: 5,
+        ..IngestLimits::default()
     };
     assert!(load_bytes(&reused, Format::Gltf, None, &tight).is_err());
     let (_, stats) = load_bytes(&reused, Format::Gltf, None, &IngestLimits::default()).expect("6 copies");
@@ -395,7 +396,7 @@ fn meshes_no_node_places_are_left_out() {
 
 #[test]
 fn the_default_ingest_limits_are_the_configs() {
-    assert_eq!(common::defaults().cook.ingest_limits(), IngestLimits::default());
+    assert_eq!(common::defaults().ingest_limits(), IngestLimits::default());
 }
 
 /// Found by the fuzzer: indices that name a float accessor made gltf's reader reach

@@ -171,7 +171,7 @@ fn bad_requests_get_json_errors_and_the_server_keeps_serving() {
         ],
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}]
     });
-    post(&cook, Some("model/gltf+json"), sparse.to_string().as_bytes()).assert_error(422, "bad_mesh");
+    post(&cook, Some("model/gltf+json"), sparse.to_string().as_bytes()).assert_error(413, "too_large");
     post(&format!("{cook}?quad_grid=4096"), Some("model/obj"), &small_mesh(0)).assert_error(422, "over_limit");
     post(&format!("{cook}?service.workers=9"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
     get(&format!("{base}/v1/nowhere"), &[]).assert_error(404, "not_found");

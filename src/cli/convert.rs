@@ -17,7 +17,7 @@ pub struct ConvertArgs {
 /// welded) as a plain GLB, with what ingest saw in the node's extras.
 pub fn run(args: ConvertArgs) -> Result<()> {
     let settings = args.settings.load()?;
-    let (mesh, stats) = mesh::load_file(&args.input, &settings.cook.ingest_limits())?;
+    let (mesh, stats) = mesh::load_file(&args.input, &settings.ingest_limits())?;
     let part = glb::Part {
         name: "mesh",
         mesh: &mesh,

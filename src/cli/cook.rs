@@ -25,7 +25,7 @@ pub fn run(args: CookArgs) -> Result<()> {
     let settings = args.settings.load()?;
     let start = Instant::now();
     cook::mark_stage("ingest");
-    let (mesh, stats) = mesh::load_file(&args.input, &settings.cook.ingest_limits())?;
+    let (mesh, stats) = mesh::load_file(&args.input, &settings.ingest_limits())?;
     let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
     let cooked = cook::cook(mesh, stats, ingest_ms, &settings, args.eval)?;
     write_occluder(&args.output, &cooked)?;

@@ -19,7 +19,7 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> Result<()> {
     let settings = args.settings.load()?;
-    let limits = settings.cook.ingest_limits();
+    let limits = settings.ingest_limits();
     let (mut original_mesh, _) = mesh::load_file(&args.original, &limits)?;
     let topology = orient_closed_components(&mut original_mesh);
     let occluder_mesh = match mesh::load_file(&args.occluder, &limits) {

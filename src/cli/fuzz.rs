@@ -41,7 +41,7 @@ pub fn run(args: FuzzArgs) -> Result<()> {
         inputs: args.inputs,
         seed: args.seed,
         max_ms: args.max_ms,
-        limits: settings.cook.ingest_limits(),
+        limits: settings.ingest_limits(),
     };
     let start = Instant::now();
     let progress = |done: usize| {

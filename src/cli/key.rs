@@ -13,7 +13,7 @@ pub struct KeyArgs {
 
 pub fn run(args: KeyArgs) -> Result<()> {
     let settings = args.settings.load()?;
-    let (mesh, _) = mesh::load_file(&args.input, &settings.cook.ingest_limits())?;
+    let (mesh, _) = mesh::load_file(&args.input, &settings.ingest_limits())?;
     println!("{}", key::cache_key(&mesh, &settings.cook));
     Ok(())
 }

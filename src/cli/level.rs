@@ -28,7 +28,7 @@ pub fn run(args: LevelArgs) -> Result<()> {
     let settings = args
         .settings
         .load_with(&[("service.data_dir", path_setting(args.data_dir))])?;
-    let level = level::load(&args.manifest, &settings.cook.ingest_limits())?;
+    let level = level::load(&args.manifest, &settings.ingest_limits())?;
     let dir = settings.service.data_dir();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let store = SledStore::open(&dir)

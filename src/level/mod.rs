@@ -280,7 +280,7 @@ pub async fn bake(
         .push(("read+key".into(), started.elapsed().as_secs_f64() * 1e3));
 
     let lookup = Instant::now();
-    let (mut occluders, misses) = look_up(level, keyed, store, &settings.cook.ingest_limits()).await?;
+    let (mut occluders, misses) = look_up(level, keyed, store, &settings.ingest_limits()).await?;
     let cache_hits = occluders.len();
     timings.0.push(("cache".into(), lookup.elapsed().as_secs_f64() * 1e3));
     progress(cache_hits, unique.len());
@@ -369,7 +369,7 @@ fn key_meshes(
                 };
                 let format = Format::from_extension(path).map_err(|e| bad(e.to_string()))?;
                 let bytes = std::fs::read(path).map_err(|e| bad(e.to_string()))?;
-                let (mesh, stats) = load_bytes(&bytes, format, path.parent(), &settings.cook.ingest_limits())
+                let (mesh, stats) = load_bytes(&bytes, format, path.parent(), &settings.ingest_limits())
                     .map_err(|e| bad(e.to_string()))?;
                 let key = cache_key(&mesh, &settings.cook);
                 let input = Input {

@@ -12,7 +12,7 @@ const MEMORY_PER_INPUT_BYTE: usize = 64;
 
 /// Every mesh node's triangles in world space.
 pub fn read(bytes: &[u8], limits: &IngestLimits) -> Result<RawMesh, IngestError> {
-    let scene = load(bytes)?;
+    let scene = load(bytes, limits)?;
     // Meshes are stored once and may be placed by many nodes.
     let placed = scene
         .nodes
@@ -34,8 +34,8 @@ pub fn read(bytes: &[u8], limits: &IngestLimits) -> Result<RawMesh, IngestError>
 
 /// An FBX scene as a level: each mesh once, in its own space, and each node that places one as
 /// (mesh index, world transform).
-pub fn read_instances(bytes: &[u8]) -> Result<Instances, IngestError> {
-    let scene = load(bytes)?;
+pub fn read_instances(bytes: &[u8], limits: &IngestLimits) -> Result<Instances, IngestError> {
+    let scene = load(bytes, limits)?;
     let mut used = vec![None; scene.meshes.len()];
     let mut meshes = Vec::new();
     let mut placements = Vec::new();
@@ -61,8 +61,10 @@ pub fn read_instances(bytes: &[u8]) -> Result<Instances, IngestError> {
     Ok(Instances { meshes, placements })
 }
 
-fn load(bytes: &[u8]) -> Result<ufbx::SceneRoot, IngestError> {
-    let limit = MEMORY_BASE.saturating_add(bytes.len().saturating_mul(MEMORY_PER_INPUT_BYTE));
+fn load(bytes: &[u8], limits: &IngestLimits) -> Result<ufbx::SceneRoot, IngestError> {
+    let limit = MEMORY_BASE
+        .saturating_add(bytes.len().saturating_mul(MEMORY_PER_INPUT_BYTE))
+        .min(usize::try_from(limits.max_parse_bytes).unwrap_or(usize::MAX));
     let allocator = || ufbx::AllocatorOpts {
         memory_limit: limit,
         ..Default::default()

@@ -134,6 +134,7 @@ impl Stream {
                 ))
             })?;
         let size = (self.count as u64).saturating_mul(self.stride as u64);
+        limits.check_bytes(size, &format!("decoding bufferView {view}"))?;
         if self.count as u64 > limits.max_unbacked_items() || size > MAX_RATIO * encoded.len() as u64 + SLACK_BYTES {
             return Err(IngestError::TooLarge(format!(
                 "bufferView {view}: {} items of {} bytes from {} compressed bytes is more than the codec gives",

@@ -97,24 +97,44 @@ pub enum IngestError {
 pub struct IngestLimits {
     /// Triangles a scene may place, counted before its node graph is expanded (`cook.max_placed_triangles`).
     pub max_placed_triangles: u64,
+    /// Bytes a parse may allocate (`service.max_parse_bytes`).
+    pub max_parse_bytes: u64,
 }
+
+/// What reading and welding take per placed triangle at most: its corners' positions, indices,
+/// the weld's remap and hash map.
+pub const PARSE_BYTES_PER_TRIANGLE: u64 = 160;
 
 impl Default for IngestLimits {
     /// As config/default.toml.
     fn default() -> Self {
         IngestLimits {
             max_placed_triangles: 20_000_000,
+            max_parse_bytes: 4 << 30,
         }
     }
 }
 
 impl IngestLimits {
-    /// Refuses a scene that places more than `max_placed_triangles`.
+    /// Refuses a scene that places more than `max_placed_triangles`, or whose reading would take
+    /// more than `max_parse_bytes`.
     pub(crate) fn check_placed(&self, placed: u64) -> Result<(), IngestError> {
-        match placed > self.max_placed_triangles {
-            true => Err(IngestError::TooLarge(format!(
+        if placed > self.max_placed_triangles {
+            return Err(IngestError::TooLarge(format!(
                 "the file places {placed} triangles, over cook.max_placed_triangles ({})",
                 self.max_placed_triangles
+            )));
+        }
+        self.check_bytes(placed.saturating_mul(PARSE_BYTES_PER_TRIANGLE), "reading its triangles")
+    }
+
+    /// Refuses a parse that would allocate `bytes` past `max_parse_bytes`.
+    pub(crate) fn check_bytes(&self, bytes: u64, what: &str) -> Result<(), IngestError> {
+        match bytes > self.max_parse_bytes {
+            true => Err(IngestError::TooLarge(format!(
+                "{what} would take {} MB, over service.max_parse_bytes ({} MB)",
+                bytes >> 20,
+                self.max_parse_bytes >> 20
             ))),
             false => Ok(()),
         }
@@ -280,7 +300,7 @@ pub fn load_instances(
 ) -> Result<(Vec<Part>, Vec<Placement>), IngestError> {
     let scene = match format {
         Format::Gltf => gltf_in::read_instances(bytes, base_dir, limits)?,
-        Format::Fbx => fbx::read_instances(bytes)?,
+        Format::Fbx => fbx::read_instances(bytes, limits)?,
         Format::Obj | Format::Ply | Format::Stl => Instances {
             meshes: vec![(String::from("mesh"), load_raw(bytes, format, base_dir, limits)?)],
             placements: vec![(0, glam::Mat4::IDENTITY)],

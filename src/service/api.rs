@@ -441,9 +441,10 @@ async fn submit_cook(
         Some(key) => key,
         None => {
             let cook_settings = settings.cook.clone();
+            let limits = settings.ingest_limits();
             let parse = bytes.clone();
             let key = tokio::task::spawn_blocking(move || {
-                let (mesh, _) = load_bytes(&parse, format, None, &cook_settings.ingest_limits())?;
+                let (mesh, _) = load_bytes(&parse, format, None, &limits)?;
                 Ok::<_, crate::mesh::IngestError>(cache_key(&mesh, &cook_settings))
             })
             .await
@@ -454,7 +455,7 @@ async fn submit_cook(
                     format!("reading the mesh crashed: {e}"),
                 )
             })?
-            .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "bad_mesh", e.to_string()))?;
+            .map_err(bad_mesh)?;
             service.remember_key(upload, &key);
             key
         }
@@ -467,6 +468,15 @@ async fn submit_cook(
         &key,
         service.submit(&key, input, settings_json, owner_of(&caller)).await,
     )
+}
+
+/// An upload that does not read: 413 when reading it would take more than the server allows,
+/// else 422.
+fn bad_mesh(e: crate::mesh::IngestError) -> ApiError {
+    match e {
+        crate::mesh::IngestError::TooLarge(why) => ApiError::new(StatusCode::PAYLOAD_TOO_LARGE, "too_large", why),
+        e => ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "bad_mesh", e.to_string()),
+    }
 }
 
 fn bad_level(message: impl Into<String>) -> ApiError {
@@ -512,7 +522,7 @@ async fn submit_level(
     let settings = job_settings(service, &params, &["cook", "level"])?;
     let multipart = multipart.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", e.body_text()))?;
     let (manifest, parts) = read_level_parts(multipart).await?;
-    let uploads = key_uploads(parts, settings.cook.clone()).await?;
+    let uploads = key_uploads(parts, settings.cook.clone(), settings.ingest_limits()).await?;
     let key_of = file_level_meshes(service, &manifest, uploads).await?;
     // Every mesh as its key: the level's input, and what its key is made of.
     let resolved = Manifest {
@@ -595,6 +605,7 @@ async fn read_level_parts(
 async fn key_uploads(
     parts: HashMap<String, axum::body::Bytes>,
     cook: crate::config::CookSettings,
+    limits: crate::mesh::IngestLimits,
 ) -> Result<Vec<(String, String, Input)>, ApiError> {
     use rayon::prelude::*;
     tokio::task::spawn_blocking(move || {
@@ -603,8 +614,7 @@ async fn key_uploads(
             .map(|(name, bytes)| {
                 let bad = |why: String| bad_level(format!("part `{name}`: {why}"));
                 let format = Format::from_extension(std::path::Path::new(&name)).map_err(|e| bad(e.to_string()))?;
-                let (mesh, _) =
-                    load_bytes(&bytes, format, None, &cook.ingest_limits()).map_err(|e| bad(e.to_string()))?;
+                let (mesh, _) = load_bytes(&bytes, format, None, &limits).map_err(|e| bad(e.to_string()))?;
                 let input = Input {
                     format: format.name().into(),
                     bytes: bytes.to_vec(),

@@ -136,8 +136,7 @@ impl Client {
         out_dir: &Path,
     ) -> Result<String, Exit> {
         let name = file.display().to_string();
-        let (mesh, _) =
-            load_file(file, &settings.cook.ingest_limits()).map_err(|e| Exit::Local(format!("{name}: {e}")))?;
+        let (mesh, _) = load_file(file, &settings.ingest_limits()).map_err(|e| Exit::Local(format!("{name}: {e}")))?;
         let out = out_dir.join(format!(
             "{}.occluder.glb",
             file.file_stem().unwrap_or_default().to_string_lossy()

@@ -474,7 +474,7 @@ impl Service {
         let work = tokio::task::spawn_blocking(move || {
             let start = std::time::Instant::now();
             let (mesh, stats) = input
-                .load(&settings.cook.ingest_limits())
+                .load(&settings.ingest_limits())
                 .map_err(|e| fail("bad_mesh", e.to_string()))?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
             let progress = |stage: &str, done: f64| {

@@ -46,6 +46,8 @@ pub struct ServiceSettings {
     pub max_quad_grid: usize,
     pub job_timeout_s: f64,
     pub max_parse_bytes: u64,
+    pub token_submissions_per_s: f64,
+    pub token_submission_burst: f64,
 }
 
 /// Who may call the service.
@@ -283,6 +285,8 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("service.max_quad_grid", v.max_quad_grid as f64, 8.0, 4096.0)?;
     check("service.job_timeout_s", v.job_timeout_s, 1.0, 86400.0)?;
     check("service.max_parse_bytes", v.max_parse_bytes as f64, 1048576.0, 1e13)?;
+    check("service.token_submissions_per_s", v.token_submissions_per_s, 0.001, 1e6)?;
+    check("service.token_submission_burst", v.token_submission_burst, 1.0, 1e6)?;
     check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
     check("service.ack_wait_s", v.ack_wait_s, 1.0, 86_400.0)?;
     check("service.max_deliver", v.max_deliver as f64, 1.0, 1000.0)?;

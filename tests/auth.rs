@@ -164,3 +164,45 @@ fn serve_refuses_a_reachable_address_without_auth() {
     assert!(stderr.contains("service.tokens_file"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Each token has its own bucket of submissions: past it, 429 with Retry-After, and another
+/// token still submits. Prometheus counts both per token name.
+#[test]
+fn each_token_submits_at_its_own_rate() {
+    let dir = data_dir("rate");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("tokens.toml");
+    let busy = new_token(&file, "busy", "cook");
+    let calm = new_token(&file, "calm", "cook");
+    let ops = new_token(&file, "ops", "admin");
+    let setting = format!("service.tokens_file={}", file.display());
+    let server = Server::start(
+        &dir,
+        &[
+            "service.auth=tokens",
+            &setting,
+            "service.token_submission_burst=3",
+            "service.token_submissions_per_s=0.01",
+        ],
+    );
+    let cook = format!("{}/v1/cook", server.base);
+    let statuses: Vec<u16> = (0..4).map(|_| with_token("POST", &cook, Some(&busy)).status).collect();
+    assert!(statuses[..3].iter().all(|s| matches!(s, 200 | 202)), "{statuses:?}");
+    let limited = with_token("POST", &cook, Some(&busy));
+    limited.assert_error(429, "rate_limited");
+    let wait: u64 = limited.header("retry-after").expect("Retry-After").parse().unwrap();
+    assert!((1..=100).contains(&wait), "{wait}");
+    assert_eq!(statuses[3], 429);
+    assert_ne!(
+        with_token("POST", &cook, Some(&calm)).status,
+        429,
+        "another token is not held back"
+    );
+    let metrics = String::from_utf8(with_token("GET", &format!("{}/metrics", server.base), Some(&ops)).body).unwrap();
+    assert!(
+        metrics.contains("occluder_submissions_limited_total{token=\"busy\"} 2"),
+        "{metrics}"
+    );
+    assert!(server.terminate().success());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -164,6 +164,26 @@ async fn authorize(
             "forbidden",
             format!("token `{}` lacks the `{}` scope", entry.name, needed[0].name()),
         ),
+        Some(Some(entry)) if request.method() == axum::http::Method::POST => {
+            metrics::counter!("occluder_submissions_total", "token" => entry.name.clone()).increment(1);
+            match tokens.take_submission(&entry.name) {
+                Ok(()) => {
+                    request.extensions_mut().insert(Caller(entry));
+                    return next.run(request).await;
+                }
+                Err(wait_s) => {
+                    metrics::counter!("occluder_submissions_limited_total", "token" => entry.name.clone()).increment(1);
+                    ApiError {
+                        retry_after: Some(wait_s.ceil().max(1.0) as u64),
+                        ..ApiError::new(
+                            StatusCode::TOO_MANY_REQUESTS,
+                            "rate_limited",
+                            format!("token `{}` is over service.token_submissions_per_s", entry.name),
+                        )
+                    }
+                }
+            }
+        }
         Some(Some(entry)) => {
             request.extensions_mut().insert(Caller(entry));
             return next.run(request).await;

@@ -45,10 +45,18 @@ struct File {
     token: Vec<Entry>,
 }
 
-/// The tokens a server accepts, from its file.
+/// The tokens a server accepts, from its file, and what each may still submit.
 pub struct Tokens {
     path: PathBuf,
     loaded: RwLock<Loaded>,
+    submissions: Buckets,
+}
+
+/// Submissions per token name: a bucket of `burst` that refills at `rate` a second.
+struct Buckets {
+    rate: f64,
+    burst: f64,
+    held: std::sync::Mutex<std::collections::HashMap<String, (f64, Instant)>>,
 }
 
 struct Loaded {
@@ -61,13 +69,36 @@ struct Loaded {
 const LOOK_EVERY: Duration = Duration::from_secs(1);
 
 impl Tokens {
-    /// Reads the file; a missing or malformed one is an error naming it.
-    pub fn open(path: &Path) -> Result<Tokens, String> {
+    /// Reads the file; a missing or malformed one is an error naming it. Each token may submit
+    /// `burst` jobs at once and `rate` a second after that.
+    pub fn open(path: &Path, rate: f64, burst: f64) -> Result<Tokens, String> {
         let loaded = read(path)?;
         Ok(Tokens {
             path: path.to_path_buf(),
             loaded: RwLock::new(loaded),
+            submissions: Buckets {
+                rate,
+                burst,
+                held: Default::default(),
+            },
         })
+    }
+
+    /// Takes one submission from `name`'s bucket; when it is empty, the seconds until one is
+    /// there again.
+    pub fn take_submission(&self, name: &str) -> Result<(), f64> {
+        let Buckets { rate, burst, held } = &self.submissions;
+        let mut held = held.lock().unwrap_or_else(|e| e.into_inner());
+        let (left, since) = held.entry(name.to_string()).or_insert((*burst, Instant::now()));
+        *left = (*left + since.elapsed().as_secs_f64() * rate).min(*burst);
+        *since = Instant::now();
+        match *left >= 1.0 {
+            true => {
+                *left -= 1.0;
+                Ok(())
+            }
+            false => Err((1.0 - *left) / rate),
+        }
     }
 
     /// Reads the file again (SIGHUP). A file that no longer reads keeps the tokens as they were.

@@ -767,7 +767,12 @@ fn tokens_of(settings: &Settings, insecure_no_auth: bool) -> anyhow::Result<Opti
             anyhow::bail!("service.auth = \"tokens\" needs service.tokens_file (see `occluder-cook token new`)")
         }
         crate::config::AuthMode::Tokens => Ok(Some(Arc::new(
-            auth::Tokens::open(std::path::Path::new(&service.tokens_file)).map_err(anyhow::Error::msg)?,
+            auth::Tokens::open(
+                std::path::Path::new(&service.tokens_file),
+                service.token_submissions_per_s,
+                service.token_submission_burst,
+            )
+            .map_err(anyhow::Error::msg)?,
         ))),
         crate::config::AuthMode::None if !insecure_no_auth && !is_loopback(&service.listen) => anyhow::bail!(
             "service.listen = {} is reachable from other machines and service.auth = \"none\": set service.auth = \"tokens\" or pass --insecure-no-auth",

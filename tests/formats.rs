@@ -280,3 +280,41 @@ fn fbx_declared_array_lengths_allocate_nothing_unchecked() {
         .to_string();
     assert!(message.contains("Memory limit"), "{message}");
 }
+
+/// FBX 6.1 (ASCII, `Properties60`, no global settings): read in the FBX defaults, centimetres,
+/// so a unit cube moved 5 along x lies 5 to 6 cm out, in metres.
+#[test]
+fn fbx_6_is_read_in_its_default_unit() {
+    let fbx6 = r#"; FBX 6.1.0 project file
+FBXHeaderExtension:  {
+	FBXHeaderVersion: 1003
+	FBXVersion: 6100
+}
+Objects:  {
+	Model: "Model::cube", "Mesh" {
+		Version: 232
+		Properties60:  {
+			Property: "Lcl Translation", "Lcl Translation", "A+",5,0,0
+		}
+		Vertices: 0,0,0,1,0,0,1,1,0,0,1,0,0,0,1,1,0,1,1,1,1,0,1,1
+		PolygonVertexIndex: 0,3,2,-2,4,5,6,-8,0,1,5,-5,1,2,6,-6,2,3,7,-7,3,0,4,-8
+	}
+}
+Connections:  {
+	Connect: "OO", "Model::cube", "Model::Scene"
+}
+"#;
+    let (mesh, stats) = load_bytes(fbx6.as_bytes(), Format::Fbx, None, &IngestLimits::default()).expect("FBX 6 reads");
+    assert_eq!(mesh.triangles.len(), 12);
+    let (lo, hi) = mesh.bounds();
+    assert!(
+        lo.abs_diff_eq(Vec3::new(0.05, 0.0, 0.0), 1e-6) && hi.abs_diff_eq(Vec3::new(0.06, 0.01, 0.01), 1e-6),
+        "{lo} {hi}"
+    );
+    assert!(
+        (signed_volume(&mesh) - 1e-6).abs() < 1e-9,
+        "outward: {}",
+        signed_volume(&mesh)
+    );
+    assert_eq!(stats.source_frame.expect("the frame").unit_meters, 0.01);
+}

@@ -552,6 +552,14 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
         "done"
     );
     assert!(server.terminate().success());
+    // The failed job's upload is gone from the store; the done one's stays, to remake its result.
+    let inputs = tokio::runtime::Runtime::new().unwrap().block_on(async {
+        use occluder_cook::store::Store;
+        let store = occluder_cook::store::sled::SledStore::open(&dir).unwrap();
+        let kept = async |key: &Value| store.input(key.as_str().unwrap()).await.unwrap().is_some();
+        (kept(&slow["key"]).await, kept(&quick["key"]).await)
+    });
+    assert_eq!(inputs, (false, true));
 
     let server = Server::start(&dir, &["service.workers=1", "service.max_resolution=512"]);
     let base = &server.base;
@@ -559,6 +567,7 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
     let running = post(&format!("{base}/v1/cook?resolution=384"), Some("model/obj"), &slow_mesh).json();
     let running = running["job"].as_str().unwrap().to_string();
     let queued = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(21)).json();
+    let queued_key = queued["key"].clone();
     let queued = queued["job"].as_str().unwrap().to_string();
     let deadline = Instant::now() + Duration::from_secs(30);
     while get(&format!("{base}/v1/jobs/{running}"), &[]).json()["state"] != "running" {
@@ -593,6 +602,14 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
     // The cancelled mesh can be sent again: it is cooked anew.
     let again = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(21));
     assert_eq!(again.status, 202, "{}", String::from_utf8_lossy(&again.body));
+    wait_for(base, again.json()["job"].as_str().unwrap(), Duration::from_secs(60));
     assert!(server.terminate().success());
+    // Cancelled while queued, its input went when the worker came to it; sent again, it is back.
+    let kept = tokio::runtime::Runtime::new().unwrap().block_on(async {
+        use occluder_cook::store::Store;
+        let store = occluder_cook::store::sled::SledStore::open(&dir).unwrap();
+        store.input(queued_key.as_str().unwrap()).await.unwrap().is_some()
+    });
+    assert!(kept, "the second upload's input is kept");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -321,7 +321,11 @@ impl Service {
             }
         };
         if job.state.is_finished() {
-            // Its worker stopped between finishing it and taking it off the queue.
+            // Cancelled while queued, or its worker stopped between finishing it and taking it
+            // off the queue.
+            if job.state == JobState::Failed {
+                self.drop_input(&job).await;
+            }
             let _ = delivery.finish().await;
             return;
         }
@@ -376,6 +380,12 @@ impl Service {
             tending.abort();
             stored
         };
+        self.end(job, outcome, delivery.as_ref()).await;
+    }
+
+    /// Records how a job ended and takes it off the queue. A failed job's input goes: nothing
+    /// will cook it again, and a new submission uploads it anew.
+    async fn end(&self, mut job: Job, outcome: Result<(), JobError>, delivery: &dyn Delivery) {
         match outcome {
             Ok(()) => {
                 job.state = JobState::Done;
@@ -385,12 +395,13 @@ impl Service {
                 tracing::warn!(job = job.id, error = e.message, "job failed");
                 job.state = JobState::Failed;
                 job.error = Some(e);
+                self.drop_input(&job).await;
             }
         }
         job.updated_ms = now_ms();
         metrics::counter!("occluder_jobs_finished_total", "state" => job.state.name()).increment(1);
         let recorded = persist("record the finished job", &job.id, || self.store.put_job(&job)).await;
-        self.live.lock().unwrap().remove(&id);
+        self.live.lock().unwrap().remove(&job.id);
         if recorded.is_ok() {
             let _ = self.store.release(&job.key, &job.id).await;
             if let Err(e) = delivery.finish().await {
@@ -403,6 +414,20 @@ impl Service {
             self.evict().await;
         }
         self.update_gauges().await;
+    }
+
+    /// Deletes the input of `job`, which has failed, unless another job holds its key now (and
+    /// needs the same bytes): the claim is held, or taken, while the input goes.
+    async fn drop_input(&self, job: &Job) {
+        match self.store.claim(&job.key, &job.id).await {
+            Ok(None) => {}
+            Ok(Some(holder)) if holder.job == job.id => {}
+            _ => return,
+        }
+        if let Err(e) = self.store.delete_input(&job.key).await {
+            tracing::warn!(job = job.id, error = %e, "cannot delete the failed job's input");
+        }
+        let _ = self.store.release(&job.key, &job.id).await;
     }
 
     /// While a job runs: writes its progress where other nodes read it, keeps its delivery

@@ -121,7 +121,7 @@ pub fn run(seeds: &[Seed], settings: &FuzzSettings, progress: &(dyn Fn(usize) + 
             let mut rng = fastrand::Rng::with_seed(settings.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ i as u64);
             let of_format = &formats[i % formats.len()];
             let seed = of_format[rng.usize(..of_format.len())];
-            let (mutation, bytes) = mutate(&mut rng, seed, seeds);
+            let (mutation, bytes) = mutate(&mut rng, seed, of_format);
             let outcome = read(seed, mutation, bytes, settings);
             let n = done.fetch_add(1, Ordering::Relaxed) + 1;
             if n.is_multiple_of(1000) {
@@ -186,18 +186,18 @@ fn read(seed: &Seed, mutation: String, bytes: Vec<u8>, settings: &FuzzSettings) 
     }
 }
 
-/// One to three mutations of `seed`, named.
-fn mutate(rng: &mut fastrand::Rng, seed: &Seed, seeds: &[Seed]) -> (String, Vec<u8>) {
+/// One to three mutations of `seed`, named; `same_format` are the seeds a splice takes from.
+fn mutate(rng: &mut fastrand::Rng, seed: &Seed, same_format: &[&Seed]) -> (String, Vec<u8>) {
     let mut bytes = seed.bytes.clone();
     let mut names = Vec::new();
     for _ in 0..rng.usize(1..=3) {
-        names.push(mutate_once(rng, seed, seeds, &mut bytes));
+        names.push(mutate_once(rng, same_format, &mut bytes));
     }
     (names.join(" + "), bytes)
 }
 
-/// One mutation of `bytes`, a copy of `seed`'s, named.
-fn mutate_once(rng: &mut fastrand::Rng, seed: &Seed, seeds: &[Seed], bytes: &mut Vec<u8>) -> &'static str {
+/// One mutation of `bytes`, named.
+fn mutate_once(rng: &mut fastrand::Rng, same_format: &[&Seed], bytes: &mut Vec<u8>) -> &'static str {
     if bytes.is_empty() {
         return "empty";
     }
@@ -225,8 +225,7 @@ fn mutate_once(rng: &mut fastrand::Rng, seed: &Seed, seeds: &[Seed], bytes: &mut
             "truncate"
         }
         3 => {
-            let same: Vec<&Seed> = seeds.iter().filter(|s| s.format == seed.format).collect();
-            let other = &same[rng.usize(..same.len())].bytes;
+            let other = &same_format[rng.usize(..same_format.len())].bytes;
             bytes.truncate(rng.usize(..=bytes.len()));
             if !other.is_empty() {
                 bytes.extend_from_slice(&other[rng.usize(..other.len())..]);

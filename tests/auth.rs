@@ -4,7 +4,7 @@
 mod common;
 use common::http::*;
 use common::{FBX_MIRRORED_CUBE, cli};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// A new token from `token new`, appended to `file`.
@@ -25,6 +25,22 @@ fn new_token(file: &Path, name: &str, scopes: &str) -> String {
         "the token is shown once, on stdout only"
     );
     stdout.trim().to_string()
+}
+
+/// A fresh data folder and the tokens file in it.
+fn folder_with_tokens_file(name: &str) -> (PathBuf, PathBuf) {
+    let dir = data_dir(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("tokens.toml");
+    (dir, file)
+}
+
+/// A server on `dir` that takes the tokens in `file`, with `sets` besides.
+fn start_with_tokens(dir: &Path, file: &Path, sets: &[&str]) -> Server {
+    let tokens_file = format!("service.tokens_file={}", file.display());
+    let mut all = vec!["service.auth=tokens", tokens_file.as_str()];
+    all.extend_from_slice(sets);
+    Server::start(dir, &all)
 }
 
 /// A GET, or a POST of a small OBJ, with `token` as its bearer token if given.
@@ -48,13 +64,10 @@ fn with_token(method: &str, url: &str, token: Option<&str>) -> Reply {
 
 #[test]
 fn tokens_guard_every_endpoint_but_healthz_and_reload_without_a_restart() {
-    let dir = data_dir("auth");
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("tokens.toml");
+    let (dir, file) = folder_with_tokens_file("auth");
     let cook = new_token(&file, "ci", "read,cook");
     let reader = new_token(&file, "dashboard", "read");
-    let setting = format!("service.tokens_file={}", file.display());
-    let server = Server::start(&dir, &["service.auth=tokens", &setting]);
+    let server = start_with_tokens(&dir, &file, &[]);
     let base = &server.base;
     let endpoints = [
         ("POST", "/v1/cook", "cook"),
@@ -169,18 +182,14 @@ fn serve_refuses_a_reachable_address_without_auth() {
 /// token still submits. Prometheus counts both per token name.
 #[test]
 fn each_token_submits_at_its_own_rate() {
-    let dir = data_dir("rate");
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("tokens.toml");
+    let (dir, file) = folder_with_tokens_file("rate");
     let busy = new_token(&file, "busy", "cook");
     let calm = new_token(&file, "calm", "cook");
     let ops = new_token(&file, "ops", "admin");
-    let setting = format!("service.tokens_file={}", file.display());
-    let server = Server::start(
+    let server = start_with_tokens(
         &dir,
+        &file,
         &[
-            "service.auth=tokens",
-            &setting,
             "service.token_submission_burst=3",
             "service.token_submissions_per_s=0.01",
         ],

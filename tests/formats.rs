@@ -67,28 +67,23 @@ fn ply_in_every_encoding_gives_the_cube_with_quads_fanned() {
             "{encoding}: same triangles, same winding"
         );
     }
+    // 12 triangles: one more than placing allows, 1,920 bytes to read where 1,000 are.
     let tight = IngestLimits {
         max_placed_triangles: 11,
         ..IngestLimits::default()
     };
-    let refused = load_bytes(&ply_cube("ascii"), Format::Ply, None, &tight).map(|_| ());
-    assert!(
-        refused
-            .expect_err("12 triangles")
-            .to_string()
-            .contains("over cook.max_placed_triangles")
-    );
     let small = IngestLimits {
         max_parse_bytes: 1000,
         ..IngestLimits::default()
     };
-    let refused = load_bytes(&ply_cube("ascii"), Format::Ply, None, &small).map(|_| ());
-    assert!(
-        refused
-            .expect_err("1,920 bytes")
-            .to_string()
-            .contains("over service.max_parse_bytes")
-    );
+    for (limits, expected) in [
+        (tight, "over cook.max_placed_triangles"),
+        (small, "over service.max_parse_bytes"),
+    ] {
+        let refused = load_bytes(&ply_cube("ascii"), Format::Ply, None, &limits).map(|_| ());
+        let message = refused.expect_err(expected).to_string();
+        assert!(message.contains(expected), "{message}");
+    }
 }
 
 #[test]

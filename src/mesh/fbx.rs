@@ -19,7 +19,7 @@ pub fn read(bytes: &[u8], limits: &IngestLimits) -> Result<RawMesh, IngestError>
         .iter()
         .filter_map(|node| node.mesh.as_ref())
         .map(|mesh| mesh.num_triangles as u64);
-    limits.check_placed(placed.fold(0, u64::saturating_add))?;
+    limits.check_placed(placed.fold(0, u64::saturating_add), "triangles")?;
     let mut raw = RawMesh {
         source_frame: Some(source_frame(&scene)),
         ..RawMesh::default()

@@ -12,18 +12,14 @@ const FORMAT: &str = "glTF";
 const DRACO: &str = "KHR_draco_mesh_compression";
 
 pub fn read(bytes: &[u8], base_dir: Option<&Path>, limits: &IngestLimits) -> Result<RawMesh, IngestError> {
-    let invalid = match parse(bytes)? {
-        Ok(gltf) => return read_guarded(&gltf, base_dir, limits),
-        Err(invalid) => invalid,
+    let (invalid, lenient) = match document(bytes)? {
+        Document::Readable(gltf, warning) => {
+            let mut raw = read_guarded(&gltf, base_dir, limits)?;
+            raw.warnings.extend(warning);
+            return Ok(raw);
+        }
+        Document::Invalid(invalid, lenient) => (invalid, lenient),
     };
-    let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
-    if let Some(gltf) = &lenient
-        && let Some(ignored) = ignorable(&invalid, gltf)
-    {
-        let mut raw = read_guarded(gltf, base_dir, limits)?;
-        raw.warnings.extend(ignored_warning(&ignored));
-        return Ok(raw);
-    }
     // Say what is really wrong where the geometry can still be read (infinite coordinates make
     // min/max invalid, for one).
     let geometry = lenient
@@ -37,6 +33,30 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>, limits: &IngestLimits) -> Res
             | IngestError::TooLarge(_)),
         )) => e,
         _ => IngestError::malformed(FORMAT, first_problem(&invalid)),
+    })
+}
+
+/// A document as the readers take it.
+enum Document {
+    /// Valid, or with problems only where [`ignorable`] looks past them; with the warning that
+    /// names the extensions ignored.
+    Readable(gltf::Gltf, Option<String>),
+    /// Why it is invalid, and the document parsed without validation where it parses.
+    Invalid(gltf::Error, Option<gltf::Gltf>),
+}
+
+/// The document validated, or parsed without validation where every problem can be read past.
+fn document(bytes: &[u8]) -> Result<Document, IngestError> {
+    let invalid = match parse(bytes)? {
+        Ok(gltf) => return Ok(Document::Readable(gltf, None)),
+        Err(invalid) => invalid,
+    };
+    Ok(match gltf::Gltf::from_slice_without_validation(bytes).ok() {
+        Some(gltf) => match ignorable(&invalid, &gltf) {
+            Some(ignored) => Document::Readable(gltf, ignored_warning(&ignored)),
+            None => Document::Invalid(invalid, Some(gltf)),
+        },
+        None => Document::Invalid(invalid, None),
     })
 }
 
@@ -144,7 +164,8 @@ fn read_scene(gltf: &gltf::Gltf, base_dir: Option<&Path>, limits: &IngestLimits)
 /// What primitives are read from: the document with its compressed views decoded, the buffers'
 /// bytes, and how.
 struct Source<'a> {
-    document: gltf::Document,
+    /// Borrowed from the file, or rewritten where compressed views were decoded.
+    document: std::borrow::Cow<'a, gltf::Document>,
     buffers: Vec<Vec<u8>>,
     limits: &'a IngestLimits,
     /// KHR_mesh_quantization: positions may be integers.
@@ -152,12 +173,17 @@ struct Source<'a> {
 }
 
 impl<'a> Source<'a> {
-    fn open(gltf: &gltf::Gltf, base_dir: Option<&Path>, limits: &'a IngestLimits) -> Result<Source<'a>, IngestError> {
+    fn open(
+        gltf: &'a gltf::Gltf,
+        base_dir: Option<&Path>,
+        limits: &'a IngestLimits,
+    ) -> Result<Source<'a>, IngestError> {
+        use std::borrow::Cow;
         let mut buffers = load_buffers(gltf, base_dir)?;
         let uses = |name: &str| gltf.extensions_used().any(|e| e == name);
         let document = match uses(meshopt::EXTENSION) {
-            true => meshopt::decode(gltf.document.clone(), &mut buffers, limits)?,
-            false => gltf.document.clone(),
+            true => Cow::Owned(meshopt::decode(gltf.document.clone(), &mut buffers, limits)?),
+            false => Cow::Borrowed(&gltf.document),
         };
         Ok(Source {
             quantized: uses(QUANTIZATION),
@@ -171,16 +197,9 @@ impl<'a> Source<'a> {
 /// A glTF scene as a level: each mesh once, in its own space, with its name, and each node that
 /// places a mesh as (mesh index, world transform).
 pub fn read_instances(bytes: &[u8], base_dir: Option<&Path>, limits: &IngestLimits) -> Result<Instances, IngestError> {
-    let (gltf, warning) = match parse(bytes)? {
-        Ok(gltf) => (gltf, None),
-        Err(invalid) => {
-            // As in `read`: an invalid appearance does not block the geometry.
-            let lenient = gltf::Gltf::from_slice_without_validation(bytes).ok();
-            match lenient.and_then(|gltf| Some((ignorable(&invalid, &gltf)?, gltf))) {
-                Some((ignored, gltf)) => (gltf, ignored_warning(&ignored)),
-                None => return Err(IngestError::malformed(FORMAT, first_problem(&invalid))),
-            }
-        }
+    let (gltf, warning) = match document(bytes)? {
+        Document::Readable(gltf, warning) => (gltf, warning),
+        Document::Invalid(invalid, _) => return Err(IngestError::malformed(FORMAT, first_problem(&invalid))),
     };
     if let Some(warning) = warning {
         tracing::warn!("{warning}");
@@ -233,9 +252,9 @@ fn walk_scene(
     let nodes: Vec<gltf::Node> = gltf.nodes().collect();
     let roots: Vec<usize> = scene.nodes().map(|n| n.index()).collect();
     let (visits, triangles) = placed_counts(&nodes, &roots)?;
-    limits.check_placed(triangles)?;
+    limits.check_placed(triangles, "triangles")?;
     // Each visit multiplies a matrix: a graph of empty nodes reused many times costs time too.
-    limits.check_placed(visits)?;
+    limits.check_placed(visits, "node visits")?;
     // Depth first with an explicit stack: a chain of nodes deeper than the thread's stack is valid.
     let mut stack: Vec<(usize, Mat4)> = roots.iter().rev().map(|&n| (n, Mat4::IDENTITY)).collect();
     while let Some((index, parent)) = stack.pop() {

@@ -103,7 +103,7 @@ pub struct IngestLimits {
 
 /// What reading and welding take per placed triangle at most: its corners' positions, indices,
 /// the weld's remap and hash map.
-pub const PARSE_BYTES_PER_TRIANGLE: u64 = 160;
+const PARSE_BYTES_PER_TRIANGLE: u64 = 160;
 
 impl Default for IngestLimits {
     /// As config/default.toml.
@@ -116,16 +116,19 @@ impl Default for IngestLimits {
 }
 
 impl IngestLimits {
-    /// Refuses a scene that places more than `max_placed_triangles`, or whose reading would take
-    /// more than `max_parse_bytes`.
-    pub(crate) fn check_placed(&self, placed: u64) -> Result<(), IngestError> {
+    /// Refuses a scene that places more than `max_placed_triangles` (`what`: triangles, or the
+    /// node visits that place them), or whose reading would take more than `max_parse_bytes`.
+    pub(crate) fn check_placed(&self, placed: u64, what: &str) -> Result<(), IngestError> {
         if placed > self.max_placed_triangles {
             return Err(IngestError::TooLarge(format!(
-                "the file places {placed} triangles, over cook.max_placed_triangles ({})",
+                "the file places {placed} {what}, over cook.max_placed_triangles ({})",
                 self.max_placed_triangles
             )));
         }
-        self.check_bytes(placed.saturating_mul(PARSE_BYTES_PER_TRIANGLE), "reading its triangles")
+        self.check_bytes(
+            placed.saturating_mul(PARSE_BYTES_PER_TRIANGLE),
+            &format!("reading its {what}"),
+        )
     }
 
     /// Refuses a parse that would allocate `bytes` past `max_parse_bytes`.
@@ -273,7 +276,7 @@ fn load_raw(
         Format::Ply => ply::read(bytes)?,
         Format::Stl => stl::read(bytes)?,
     };
-    limits.check_placed(raw.triangles.len() as u64)?;
+    limits.check_placed(raw.triangles.len() as u64, "triangles")?;
     Ok(raw)
 }
 

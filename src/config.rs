@@ -48,6 +48,14 @@ pub struct ServiceSettings {
     pub max_parse_bytes: u64,
     pub token_submissions_per_s: f64,
     pub token_submission_burst: f64,
+    pub token_max_queued: usize,
+    pub tls_cert: String,
+    pub tls_key: String,
+    pub nats_user: String,
+    pub nats_password_file: String,
+    pub nats_nkey_file: String,
+    pub nats_creds_file: String,
+    pub nats_ca_cert: String,
 }
 
 /// Who may call the service.
@@ -288,6 +296,31 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("service.token_submissions_per_s", v.token_submissions_per_s, 0.001, 1e6)?;
     check("service.token_submission_burst", v.token_submission_burst, 1.0, 1e6)?;
     check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
+    check("service.token_max_queued", v.token_max_queued as f64, 1.0, 1e7)?;
+    if v.tls_cert.is_empty() != v.tls_key.is_empty() {
+        return Err(ConfigError::Invalid {
+            key: if v.tls_cert.is_empty() {
+                "service.tls_cert"
+            } else {
+                "service.tls_key"
+            }
+            .into(),
+            message: "service.tls_cert and service.tls_key go together: set both for HTTPS, or neither".into(),
+        });
+    }
+    let nats_sign_ins = [&v.nats_user, &v.nats_nkey_file, &v.nats_creds_file];
+    if nats_sign_ins.iter().filter(|s| !s.is_empty()).count() > 1 {
+        return Err(ConfigError::Invalid {
+            key: "service.nats_user".into(),
+            message: "choose one way to sign in to NATS: nats_user (with nats_password_file), nats_nkey_file or nats_creds_file".into(),
+        });
+    }
+    if !v.nats_password_file.is_empty() && v.nats_user.is_empty() {
+        return Err(ConfigError::Invalid {
+            key: "service.nats_password_file".into(),
+            message: "a NATS password needs service.nats_user".into(),
+        });
+    }
     check("service.ack_wait_s", v.ack_wait_s, 1.0, 86_400.0)?;
     check("service.max_deliver", v.max_deliver as f64, 1.0, 1000.0)?;
     if !(v.nats_url.is_empty() || v.nats_url.starts_with("nats://") || v.nats_url.starts_with("tls://")) {

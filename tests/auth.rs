@@ -1,9 +1,10 @@
 //! Tokens against the real binary: 401 without one, 403 with the wrong scope, the tokens file
-//! read again without a restart, `submit --token`, and no open service on a reachable address.
+//! read again without a restart, `submit --token`, no open service on a reachable address, each
+//! token's quotas and its turn at the workers, and HTTPS with a certificate read again on change.
 
 mod common;
 use common::http::*;
-use common::{FBX_MIRRORED_CUBE, cli};
+use common::{FBX_MIRRORED_CUBE, certificate_authority, cli};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -45,14 +46,11 @@ fn start_with_tokens(dir: &Path, file: &Path, sets: &[&str]) -> Server {
 
 /// A GET, or a POST of a small OBJ, with `token` as its bearer token if given.
 fn with_token(method: &str, url: &str, token: Option<&str>) -> Reply {
+    if method == "POST" {
+        return post_mesh(url, token, &small_mesh(0));
+    }
     let authorization = token.map(|t| format!("Bearer {t}"));
-    let result = if method == "POST" {
-        let mut request = agent().post(url).header("Content-Type", "model/obj");
-        if let Some(value) = &authorization {
-            request = request.header("Authorization", value);
-        }
-        request.send(&small_mesh(0)[..])
-    } else {
+    let result = {
         let mut request = agent().get(url);
         if let Some(value) = &authorization {
             request = request.header("Authorization", value);
@@ -60,6 +58,25 @@ fn with_token(method: &str, url: &str, token: Option<&str>) -> Reply {
         request.call()
     };
     reply(result)
+}
+
+/// A POST of an OBJ, with `token` as its bearer token if given.
+fn post_mesh(url: &str, token: Option<&str>, obj: &[u8]) -> Reply {
+    let mut request = agent().post(url).header("Content-Type", "model/obj");
+    if let Some(token) = token {
+        request = request.header("Authorization", &format!("Bearer {token}"));
+    }
+    reply(request.send(obj))
+}
+
+/// The job a submission was answered with.
+fn job_of(reply: &Reply) -> String {
+    assert!(
+        matches!(reply.status, 200 | 202),
+        "{}",
+        String::from_utf8_lossy(&reply.body)
+    );
+    reply.json()["job"].as_str().unwrap().to_string()
 }
 
 #[test]
@@ -212,6 +229,160 @@ fn each_token_submits_at_its_own_rate() {
         metrics.contains("occluder_submissions_limited_total{token=\"busy\"} 2"),
         "{metrics}"
     );
+    assert!(server.terminate().success());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn one_tokens_hundred_jobs_do_not_hold_back_anothers_one() {
+    let (dir, file) = folder_with_tokens_file("fair");
+    let busy = new_token(&file, "busy", "read,cook");
+    let calm = new_token(&file, "calm", "read,cook");
+    let server = start_with_tokens(
+        &dir,
+        &file,
+        &["service.workers=1", "service.token_submission_burst=1000"],
+    );
+    // Slow enough cooks that busy's jobs are still waiting when calm's arrives.
+    let cook = format!("{}/v1/cook?resolution=128", server.base);
+    let busy_jobs: Vec<String> = (0..100)
+        .map(|i| job_of(&post_mesh(&cook, Some(&busy), &small_mesh(i))))
+        .collect();
+    let calm_job = job_of(&post_mesh(&cook, Some(&calm), &small_mesh(1000)));
+    let job = |id: &str| with_token("GET", &format!("{}/v1/jobs/{id}", server.base), Some(&calm)).json();
+    let started = Instant::now();
+    let calm_done = loop {
+        let state = job(&calm_job);
+        if state["state"] == "done" {
+            break state;
+        }
+        assert_ne!(state["state"], "failed", "{state}");
+        assert!(started.elapsed() < Duration::from_secs(300), "{state}");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let tenth = job(&busy_jobs[9]);
+    assert!(
+        tenth["state"] != "done" || tenth["updated_ms"].as_u64() > calm_done["updated_ms"].as_u64(),
+        "calm's one job finished at {} ms, after busy's tenth: {tenth}",
+        calm_done["updated_ms"]
+    );
+    let done_before = busy_jobs.iter().filter(|id| job(id)["state"] == "done").count();
+    println!("calm's job finished with {done_before} of busy's 100 done");
+}
+
+#[test]
+fn a_token_may_keep_only_so_many_jobs_queued() {
+    let (dir, file) = folder_with_tokens_file("queued");
+    let busy = new_token(&file, "busy", "cook");
+    let calm = new_token(&file, "calm", "cook");
+    let ops = new_token(&file, "ops", "admin");
+    // An API node without workers: its jobs stay queued.
+    let tokens_file = format!("service.tokens_file={}", file.display());
+    let server = Server::spawn(
+        &[
+            "serve",
+            "--no-workers",
+            "--listen",
+            "127.0.0.1:0",
+            "--data-dir",
+            dir.to_str().unwrap(),
+            "--set",
+            "service.auth=tokens",
+            "--set",
+            &tokens_file,
+            "--set",
+            "service.token_max_queued=3",
+        ],
+        &[],
+    );
+    let cook = format!("{}/v1/cook", server.base);
+    for i in 0..3 {
+        assert_eq!(post_mesh(&cook, Some(&busy), &small_mesh(i)).status, 202);
+    }
+    let refused = post_mesh(&cook, Some(&busy), &small_mesh(3));
+    refused.assert_error(429, "queue_full");
+    assert!(refused.header("retry-after").is_some());
+    assert!(
+        refused.json()["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("token_max_queued")
+    );
+    // A duplicate of a queued job joins it: it adds nothing to the queue.
+    assert_eq!(post_mesh(&cook, Some(&busy), &small_mesh(0)).status, 202);
+    assert_eq!(
+        post_mesh(&cook, Some(&calm), &small_mesh(4)).status,
+        202,
+        "another token goes on"
+    );
+    let metrics = String::from_utf8(with_token("GET", &format!("{}/metrics", server.base), Some(&ops)).body).unwrap();
+    assert!(
+        metrics.contains("occluder_token_queued_jobs{token=\"busy\"} 3"),
+        "{metrics}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn submit_over_https_trusts_the_ca_it_is_given_and_a_renewed_certificate_needs_no_restart() {
+    let (dir, file) = folder_with_tokens_file("tls");
+    let token = new_token(&file, "ci", "read,cook");
+    let (ca, cert, key) = certificate_authority();
+    let [ca_file, cert_file, key_file] = ["ca.pem", "cert.pem", "key.pem"].map(|name| dir.join(name));
+    std::fs::write(&ca_file, &ca).unwrap();
+    std::fs::write(&cert_file, &cert).unwrap();
+    std::fs::write(&key_file, &key).unwrap();
+    let server = start_with_tokens(
+        &dir,
+        &file,
+        &[
+            &format!("service.tls_cert={}", cert_file.display()),
+            &format!("service.tls_key={}", key_file.display()),
+        ],
+    );
+    let https = server.base.replace("http://", "https://");
+    let mesh = dir.join("box.obj");
+    std::fs::write(&mesh, small_mesh(0)).unwrap();
+    let out = dir.join("out");
+    let submit = |ca: &Path| {
+        cli(&[
+            "submit",
+            mesh.to_str().unwrap(),
+            "--server",
+            &https,
+            "--token",
+            &token,
+            "--ca-cert",
+            ca.to_str().unwrap(),
+            "--wait",
+            "--out-dir",
+            out.to_str().unwrap(),
+        ])
+    };
+    let (code, stdout, stderr) = submit(&ca_file);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    assert!(out.join("box.occluder.glb").exists());
+    // The public roots do not know this CA; plain HTTP gets no answer from a TLS port.
+    let (code, _, stderr) = cli(&["fetch", "0", "--server", &https, "--token", &token, "-o", "x.glb"]);
+    assert_eq!(code, 4, "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(agent().get(&format!("{}/healthz", server.base)).call().is_err());
+
+    // A renewed certificate from another CA replaces the served one within moments.
+    let (new_ca, new_cert, new_key) = certificate_authority();
+    let new_ca_file = dir.join("new-ca.pem");
+    std::fs::write(&new_ca_file, &new_ca).unwrap();
+    std::fs::write(&key_file, &new_key).unwrap();
+    std::fs::write(&cert_file, &new_cert).unwrap();
+    let started = Instant::now();
+    while submit(&new_ca_file).0 != 0 {
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "the renewed certificate is not served"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    assert_eq!(submit(&ca_file).0, 4, "the old certificate is no longer served");
     assert!(server.terminate().success());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -3,6 +3,9 @@
 //! cross-node deduplication and cache, an API node killed, a worker killed mid-job, a job that
 //! keeps killing its workers, and nats-server restarted mid-run.
 //!
+//! The server requires a user and password and speaks TLS only, with a certificate from a CA made
+//! for the test: every node signs in and checks the server against that CA.
+//!
 //! Without nats-server on PATH these tests say so and pass, except under CI (`CI=true`), where
 //! .ci/run installs it and its absence is a failure.
 
@@ -22,7 +25,12 @@ struct Nats {
     child: Child,
     port: u16,
     dir: PathBuf,
+    /// The password, the CA and the server's certificate and key.
+    secrets: PathBuf,
 }
+
+/// The user the server requires.
+const NATS_USER: &str = "occluder";
 
 impl Nats {
     /// A JetStream server on a free loopback port with its store in a fresh folder, or None
@@ -43,12 +51,40 @@ impl Nats {
             .port();
         let dir = std::env::temp_dir().join(format!("occluder-cook-nats-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        Some(Nats::spawn(port, dir))
+        let secrets = dir.with_extension("secrets");
+        std::fs::create_dir_all(&secrets).unwrap();
+        let (ca, cert, key) = common::certificate_authority();
+        for (file, text) in [
+            ("password", format!("{:032x}", fastrand::u128(..))),
+            ("ca.pem", ca),
+            ("cert.pem", cert),
+            ("key.pem", key),
+        ] {
+            std::fs::write(secrets.join(file), text).unwrap();
+        }
+        Some(Nats::spawn(port, dir, secrets))
     }
 
-    fn spawn(port: u16, dir: PathBuf) -> Nats {
+    fn spawn(port: u16, dir: PathBuf, secrets: PathBuf) -> Nats {
+        let password = std::fs::read_to_string(secrets.join("password")).unwrap();
         let child = Command::new("nats-server")
-            .args(["-js", "-a", "127.0.0.1", "-p", &port.to_string(), "-sd"])
+            .args([
+                "-js",
+                "-a",
+                "127.0.0.1",
+                "-p",
+                &port.to_string(),
+                "--user",
+                NATS_USER,
+                "--pass",
+            ])
+            .arg(password)
+            .arg("--tls")
+            .arg("--tlscert")
+            .arg(secrets.join("cert.pem"))
+            .arg("--tlskey")
+            .arg(secrets.join("key.pem"))
+            .arg("-sd")
             .arg(&dir)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
@@ -59,11 +95,25 @@ impl Nats {
             assert!(start.elapsed() < Duration::from_secs(20), "nats-server does not listen");
             std::thread::sleep(Duration::from_millis(50));
         }
-        Nats { child, port, dir }
+        Nats {
+            child,
+            port,
+            dir,
+            secrets,
+        }
     }
 
     fn url(&self) -> String {
-        format!("nats://127.0.0.1:{}", self.port)
+        format!("tls://127.0.0.1:{}", self.port)
+    }
+
+    /// The settings that sign a node in and make it check the server's certificate.
+    fn credentials(&self) -> [String; 3] {
+        [
+            format!("service.nats_user={NATS_USER}"),
+            format!("service.nats_password_file={}", self.secrets.join("password").display()),
+            format!("service.nats_ca_cert={}", self.secrets.join("ca.pem").display()),
+        ]
     }
 
     /// Stops the server (SIGTERM, as a rolling restart does) and starts it again on the same
@@ -74,27 +124,39 @@ impl Nats {
             .status()
             .unwrap();
         self.child.wait().unwrap();
-        let (port, dir) = (self.port, std::mem::take(&mut self.dir));
+        let (port, dir, secrets) = (
+            self.port,
+            std::mem::take(&mut self.dir),
+            std::mem::take(&mut self.secrets),
+        );
         std::mem::forget(self);
-        Nats::spawn(port, dir)
+        Nats::spawn(port, dir, secrets)
     }
 
     fn api(&self, sets: &[&str]) -> Server {
-        let url = self.url();
-        let mut args = vec!["serve", "--no-workers", "--listen", "127.0.0.1:0", "--nats", &url];
-        for s in sets {
-            args.extend(["--set", s]);
-        }
-        Server::spawn(&args, &[])
+        Server::spawn(
+            &self.node_args(&["serve", "--no-workers", "--listen", "127.0.0.1:0"], sets),
+            &[],
+        )
     }
 
     fn worker(&self, sets: &[&str]) -> Server {
-        let url = self.url();
-        let mut args = vec!["worker", "--nats", &url, "--set", "service.workers=1"];
-        for s in sets {
-            args.extend(["--set", s]);
+        Server::spawn(&self.node_args(&["worker", "--set", "service.workers=1"], sets), &[])
+    }
+
+    /// `command` on this server, signed in, with `sets` besides.
+    fn node_args(&self, command: &[&str], sets: &[&str]) -> Vec<String> {
+        let mut args: Vec<String> = command.iter().map(|a| a.to_string()).collect();
+        args.extend(["--nats".to_string(), self.url()]);
+        for set in self
+            .credentials()
+            .iter()
+            .map(String::as_str)
+            .chain(sets.iter().copied())
+        {
+            args.extend(["--set".to_string(), set.to_string()]);
         }
-        Server::spawn(&args, &[])
+        args
     }
 }
 
@@ -103,6 +165,7 @@ impl Drop for Nats {
         let _ = self.child.kill();
         let _ = self.child.wait();
         let _ = std::fs::remove_dir_all(&self.dir);
+        let _ = std::fs::remove_dir_all(&self.secrets);
     }
 }
 
@@ -270,4 +333,112 @@ fn nats_restarted_mid_run_loses_no_job() {
         assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 200);
     }
     drop(nats);
+}
+
+#[test]
+fn a_node_with_the_wrong_password_or_none_is_refused_at_once() {
+    let Some(nats) = Nats::start("refused") else { return };
+    let wrong = nats.secrets.join("wrong-password");
+    std::fs::write(&wrong, "not-the-password").unwrap();
+    let url = nats.url();
+    let cases = [
+        vec![
+            format!("service.nats_user={NATS_USER}"),
+            format!("service.nats_password_file={}", wrong.display()),
+            format!("service.nats_ca_cert={}", nats.secrets.join("ca.pem").display()),
+        ],
+        // No credentials at all.
+        vec![format!(
+            "service.nats_ca_cert={}",
+            nats.secrets.join("ca.pem").display()
+        )],
+    ];
+    for sets in cases {
+        let mut args = vec!["worker".to_string(), "--nats".into(), url.clone()];
+        for set in sets {
+            args.extend(["--set".into(), set]);
+        }
+        let started = Instant::now();
+        let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert!(started.elapsed() < Duration::from_secs(10), "not refused at once");
+        let last = stderr.lines().last().unwrap_or_default();
+        assert!(last.contains("refused this node"), "{stderr}");
+        assert!(!stderr.contains("not-the-password"), "a secret was printed: {stderr}");
+    }
+}
+
+#[test]
+fn workers_take_the_tokens_jobs_in_turn() {
+    let Some(nats) = Nats::start("turns") else { return };
+    let tokens = nats.secrets.join("tokens.toml");
+    let token = |name: &str| {
+        let (code, stdout, stderr) = common::cli(&[
+            "token",
+            "new",
+            "--name",
+            name,
+            "--scopes",
+            "read,cook",
+            "--file",
+            tokens.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 0, "{stderr}");
+        stdout.trim().to_string()
+    };
+    let (busy, calm) = (token("busy"), token("calm"));
+    let tokens_file = format!("service.tokens_file={}", tokens.display());
+    let api = nats.api(&["service.auth=tokens", &tokens_file]);
+    let call = |method: &str, path: &str, token: &str, body: &[u8]| {
+        let url = format!("{}{path}", api.base);
+        let authorization = format!("Bearer {token}");
+        let reply = match method {
+            "POST" => reply(
+                agent()
+                    .post(&url)
+                    .header("Authorization", &authorization)
+                    .header("Content-Type", "model/obj")
+                    .send(body),
+            ),
+            _ => reply(agent().get(&url).header("Authorization", &authorization).call()),
+        };
+        assert_eq!(reply.status / 100, 2, "{}", String::from_utf8_lossy(&reply.body));
+        reply.json()
+    };
+    // Queued before any worker runs: busy's twenty, then calm's one.
+    let busy_jobs: Vec<String> = (0..20)
+        .map(|i| {
+            call("POST", "/v1/cook", &busy, &small_mesh(i))["job"]
+                .as_str()
+                .unwrap()
+                .to_string()
+        })
+        .collect();
+    let calm_job = call("POST", "/v1/cook", &calm, &small_mesh(100))["job"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let _worker = nats.worker(&[]);
+    let started = Instant::now();
+    let calm_done = loop {
+        let job = call("GET", &format!("/v1/jobs/{calm_job}"), &calm, b"");
+        if job["state"] == "done" {
+            break job;
+        }
+        assert!(started.elapsed() < Duration::from_secs(120), "{job}");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let done_before = busy_jobs
+        .iter()
+        .map(|id| call("GET", &format!("/v1/jobs/{id}"), &busy, b""))
+        .filter(|job| job["state"] == "done" && job["updated_ms"].as_u64() < calm_done["updated_ms"].as_u64())
+        .count();
+    assert!(
+        done_before <= 2,
+        "{done_before} of busy's jobs finished before calm's one"
+    );
 }

@@ -12,7 +12,7 @@ pub struct FetchArgs {
 }
 
 pub fn run(args: FetchArgs) -> Result<()> {
-    args.server.client().fetch(&args.key, &args.output)?;
+    args.server.client()?.fetch(&args.key, &args.output)?;
     println!("wrote {}", args.output.display());
     Ok(())
 }

@@ -104,17 +104,21 @@ impl SettingsArgs {
 /// Where a client command finds the server, and how it proves who it is.
 #[derive(Args)]
 pub struct ServerArgs {
-    /// e.g. http://127.0.0.1:8650
+    /// e.g. http://127.0.0.1:8650, or https://… for a server with service.tls_cert
     #[arg(long)]
     server: String,
     /// A bearer token, for a server with service.auth = "tokens".
     #[arg(long, env = "OCCLUDER_COOK_TOKEN", hide_env_values = true)]
     token: Option<String>,
+    /// PEM certificates that an https server's certificate must chain to, in place of the
+    /// public roots: a self-signed or private CA's.
+    #[arg(long, value_name = "PEM")]
+    ca_cert: Option<PathBuf>,
 }
 
 impl ServerArgs {
-    pub fn client(&self) -> occluder_cook::service::client::Client {
-        occluder_cook::service::client::Client::new(&self.server, self.token.clone())
+    pub fn client(&self) -> Result<occluder_cook::service::client::Client, occluder_cook::service::client::Exit> {
+        occluder_cook::service::client::Client::new(&self.server, self.token.clone(), self.ca_cert.as_deref())
     }
 }
 

@@ -36,7 +36,7 @@ pub fn run(args: SubmitArgs) -> Result<()> {
         })
         .collect();
     let out_dir = client::output_dir(args.out_dir)?;
-    let client = args.server.client();
+    let client = args.server.client()?;
     for file in &args.files {
         let key = client.submit(file, &settings, &query, args.wait, &out_dir)?;
         println!("{}\t{key}", file.display());

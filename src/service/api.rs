@@ -692,6 +692,10 @@ fn submitted(key: &str, outcome: Result<Submitted, SubmitError>) -> Result<Respo
                 format!("{n} jobs are waiting; try again later"),
             )
         }),
+        Err(e @ SubmitError::OwnerQueueFull { .. }) => Err(ApiError {
+            retry_after: Some(5),
+            ..ApiError::new(StatusCode::TOO_MANY_REQUESTS, "queue_full", e.to_string())
+        }),
         Err(SubmitError::Store(e)) => Err(ApiError::storage(e)),
     }
 }

@@ -75,17 +75,40 @@ pub struct Client {
 }
 
 impl Client {
-    pub fn new(server: &str, token: Option<String>) -> Client {
+    /// A client of `server` (http:// or https://). `ca_cert`: a PEM file of the certificates an
+    /// https server's must chain to, in place of the public roots (a self-signed server's).
+    pub fn new(server: &str, token: Option<String>, ca_cert: Option<&Path>) -> Result<Client, Exit> {
+        let mut tls = ureq::tls::TlsConfig::builder();
+        if let Some(path) = ca_cert {
+            let pem = std::fs::read(path)
+                .map_err(|e| Exit::Local(format!("cannot read --ca-cert {}: {e}", path.display())))?;
+            let certs = ureq::tls::parse_pem(&pem)
+                .filter_map(|item| match item {
+                    Ok(ureq::tls::PemItem::Certificate(cert)) => Some(Ok(cert)),
+                    Ok(_) => None,
+                    Err(e) => Some(Err(e)),
+                })
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|e| Exit::Local(format!("--ca-cert {}: {e}", path.display())))?;
+            if certs.is_empty() {
+                return Err(Exit::Local(format!(
+                    "--ca-cert {}: no PEM certificate in it",
+                    path.display()
+                )));
+            }
+            tls = tls.root_certs(ureq::tls::RootCerts::new_with_certs(&certs));
+        }
         let agent = ureq::Agent::config_builder()
             .http_status_as_error(false)
             .timeout_global(Some(Duration::from_secs(600)))
+            .tls_config(tls.build())
             .build()
             .into();
-        Client {
+        Ok(Client {
             agent,
             server: server.trim_end_matches('/').to_string(),
             authorization: token.map(|t| format!("Bearer {t}")),
-        }
+        })
     }
 
     /// `request` with the token, if any.

@@ -9,6 +9,7 @@
 pub mod api;
 pub mod auth;
 pub mod client;
+pub mod tls;
 
 use crate::config::Settings;
 use crate::cook::{CookError, cook_with_progress};
@@ -103,6 +104,8 @@ pub enum Submitted {
 pub enum SubmitError {
     #[error("the queue is full ({0} jobs waiting)")]
     QueueFull(usize),
+    #[error("token `{owner}` has {queued} jobs queued or running (service.token_max_queued)")]
+    OwnerQueueFull { owner: String, queued: usize },
     #[error(transparent)]
     Store(#[from] store::StoreError),
 }
@@ -180,11 +183,23 @@ impl Service {
             self.store.release(key, &job.id).await?;
             return Err(SubmitError::QueueFull(waiting));
         }
+        if let Some(owner) = &job.owner {
+            let queued = self.store.queued_for(Some(owner)).await?;
+            metrics::gauge!("occluder_token_queued_jobs", "token" => owner.clone()).set(queued as f64);
+            if queued >= self.settings.service.token_max_queued {
+                self.store.release(key, &job.id).await?;
+                metrics::counter!("occluder_submissions_limited_total", "token" => owner.clone()).increment(1);
+                return Err(SubmitError::OwnerQueueFull {
+                    owner: owner.clone(),
+                    queued,
+                });
+            }
+        }
         let stored = async {
             // The input first: the job's record makes both durable (sled flushes there).
             self.store.put_input(key, &input).await?;
             self.store.put_job(&job).await?;
-            self.store.enqueue(&job.id).await
+            self.store.enqueue(&job).await
         }
         .await;
         if let Err(e) = stored {
@@ -284,7 +299,7 @@ impl Service {
         // Remade by the service itself: no token owns it.
         match self.submit(key, input, settings, None).await {
             Ok(Submitted::Queued(id)) | Ok(Submitted::Cached(id)) => Ok(Some(id)),
-            Err(SubmitError::QueueFull(_)) => Ok(None),
+            Err(SubmitError::QueueFull(_) | SubmitError::OwnerQueueFull { .. }) => Ok(None),
             Err(SubmitError::Store(e)) => Err(e),
         }
     }
@@ -766,16 +781,37 @@ pub async fn serve(settings: Settings, api_only: bool, insecure_no_auth: bool) -
     if let Some(tokens) = tokens {
         tokio::spawn(reload_on_hangup(tokens));
     }
-    let listener = tokio::net::TcpListener::bind(&listen)
-        .await
-        .with_context(|| format!("cannot listen on {listen}"))?;
+    let tls = match (&service.settings.service.tls_cert, &service.settings.service.tls_key) {
+        (cert, key) if !cert.is_empty() => Some(tls::Tls::open(cert.as_ref(), key.as_ref()).await?),
+        _ => None,
+    };
+    let listener = std::net::TcpListener::bind(&listen).with_context(|| format!("cannot listen on {listen}"))?;
+    listener.set_nonblocking(true)?;
     println!("listening on {}", listener.local_addr()?);
     let shutdown = async move {
         terminated().await;
         tracing::info!("shutting down: no new connections; running jobs finish, queued ones stay queued");
         let _ = stop.send(true);
     };
-    axum::serve(listener, app).with_graceful_shutdown(shutdown).await?;
+    match tls {
+        Some(tls) => {
+            let handle = axum_server::Handle::new();
+            let closing = handle.clone();
+            tokio::spawn(async move {
+                shutdown.await;
+                closing.graceful_shutdown(None);
+            });
+            tokio::spawn(tls.clone().reload_on_change());
+            axum_server::tls_rustls::from_tcp_rustls(listener, tls.config)?
+                .handle(handle)
+                .serve(app.into_make_service())
+                .await?;
+        }
+        None => {
+            let listener = tokio::net::TcpListener::from_std(listener)?;
+            axum::serve(listener, app).with_graceful_shutdown(shutdown).await?;
+        }
+    }
     if let Some(pool) = pool {
         let _ = pool.await;
     }

@@ -124,12 +124,15 @@ pub trait Store: Send + Sync + 'static {
     async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>>;
     /// Lets go of `key` if the job `id` holds it.
     async fn release(&self, key: &str, id: &str) -> StoreResult<()>;
-    /// Puts a stored job on the work queue.
-    async fn enqueue(&self, id: &str) -> StoreResult<()>;
-    /// The next job for a worker, or None when none came within `wait`.
+    /// Puts a stored job on the work queue, in its owner's lane.
+    async fn enqueue(&self, job: &Job) -> StoreResult<()>;
+    /// The next job for a worker, or None when none came within `wait`. The lanes of the
+    /// owners with waiting jobs take turns.
     async fn next_job(&self, wait: Duration) -> StoreResult<Option<Box<dyn Delivery>>>;
     /// Jobs on the queue: waiting, or handed out and not finished.
     async fn queue_depth(&self) -> StoreResult<usize>;
+    /// The jobs of `owner` (None: submitted without a token) on the queue.
+    async fn queued_for(&self, owner: Option<&str>) -> StoreResult<usize>;
 
     async fn put_input(&self, key: &str, input: &Input) -> StoreResult<()>;
     async fn input(&self, key: &str) -> StoreResult<Option<Input>>;

@@ -1,6 +1,7 @@
-//! The distributed store: NATS JetStream. Jobs go on a work-queue stream that a durable pull
-//! consumer hands to the workers; job records and key claims live in KV buckets; inputs and
-//! results live in an object store under their BLAKE3 keys, sealed as in the sled store.
+//! The distributed store: NATS JetStream. Jobs go on a work-queue stream, on one subject per
+//! owner (a lane), and a durable pull consumer per lane hands them to the workers, who take the
+//! lanes in turn; job records and key claims live in KV buckets; inputs and results live in an
+//! object store under their BLAKE3 keys, sealed as in the sled store.
 //!
 //! A worker keeps its job alive with in-progress acks. One that dies stops acking, and after
 //! `ack_wait` the job is handed to another worker. The consumer hands a job out at most
@@ -19,7 +20,9 @@ use std::time::{Duration, Instant};
 use tokio::io::AsyncReadExt;
 
 const QUEUE_STREAM: &str = "OCCLUDER_JOBS";
-const QUEUE_SUBJECT: &str = "occluder.jobs";
+/// Lane subjects are `occluder.jobs.LANE`.
+const QUEUE_SUBJECTS: &str = "occluder.jobs.*";
+/// Lane consumers are `occluder-workers-LANE`.
 const CONSUMER: &str = "occluder-workers";
 const JOBS_BUCKET: &str = "occluder-jobs";
 const CLAIMS_BUCKET: &str = "occluder-claims";
@@ -33,7 +36,14 @@ const RECENT_RESULT_BYTES: usize = 64 << 20;
 pub struct NatsStore {
     jetstream: jetstream::Context,
     queue: stream::Stream,
-    consumer: consumer::PullConsumer,
+    /// The consumer of each lane this node has taken from.
+    consumers: tokio::sync::Mutex<HashMap<String, consumer::PullConsumer>>,
+    /// The lane served last: the next turn goes to the one after it.
+    last_lane: Mutex<String>,
+    /// Woken by every job published, on any node.
+    published: std::sync::Arc<tokio::sync::Notify>,
+    ack_wait: Duration,
+    max_deliver: i64,
     jobs: kv::Store,
     claims: kv::Store,
     results: kv::Store,
@@ -87,8 +97,19 @@ impl NatsStore {
         let url = &settings.nats_url;
         let started = Instant::now();
         let client = loop {
-            match async_nats::connect(url.as_str()).await {
+            match connect_options(settings).await?.connect(url.as_str()).await {
                 Ok(client) => break client,
+                // Refused credentials or certificates do not get better by waiting.
+                Err(e)
+                    if !matches!(
+                        e.kind(),
+                        async_nats::ConnectErrorKind::Io
+                            | async_nats::ConnectErrorKind::TimedOut
+                            | async_nats::ConnectErrorKind::Dns
+                    ) =>
+                {
+                    return Err(StoreError::Backend(format!("NATS at {url} refused this node: {e}")));
+                }
                 Err(e) if started.elapsed() < CONNECT_PATIENCE => {
                     tracing::warn!(url, error = %e, "NATS not reachable yet; retrying");
                     tokio::time::sleep(Duration::from_millis(500)).await;
@@ -96,11 +117,11 @@ impl NatsStore {
                 Err(e) => return Err(StoreError::Backend(format!("cannot reach NATS at {url}: {e}"))),
             }
         };
-        let jetstream = jetstream::new(client);
+        let jetstream = jetstream::new(client.clone());
         let queue = jetstream
             .get_or_create_stream(stream::Config {
                 name: QUEUE_STREAM.into(),
-                subjects: vec![QUEUE_SUBJECT.into()],
+                subjects: vec![QUEUE_SUBJECTS.into()],
                 retention: stream::RetentionPolicy::WorkQueue,
                 storage: stream::StorageType::File,
                 // A job enqueued twice within this window (a retried publish) is queued once.
@@ -109,19 +130,17 @@ impl NatsStore {
             })
             .await
             .map_err(|e| backend(format!("cannot open the stream {QUEUE_STREAM}: {e}")))?;
-        let consumer = queue
-            .get_or_create_consumer(
-                CONSUMER,
-                consumer::pull::Config {
-                    durable_name: Some(CONSUMER.into()),
-                    ack_policy: consumer::AckPolicy::Explicit,
-                    ack_wait: Duration::from_secs_f64(settings.ack_wait_s),
-                    max_deliver: settings.max_deliver as i64 + 1,
-                    ..Default::default()
-                },
-            )
+        let published = std::sync::Arc::new(tokio::sync::Notify::new());
+        let mut publications = client
+            .subscribe(QUEUE_SUBJECTS)
             .await
-            .map_err(|e| backend(format!("cannot open the consumer {CONSUMER}: {e}")))?;
+            .map_err(|e| backend(format!("cannot watch {QUEUE_SUBJECTS}: {e}")))?;
+        let wake = std::sync::Arc::clone(&published);
+        tokio::spawn(async move {
+            while publications.next().await.is_some() {
+                wake.notify_waiters();
+            }
+        });
         let jobs = open_bucket(&jetstream, JOBS_BUCKET).await?;
         let claims = open_bucket(&jetstream, CLAIMS_BUCKET).await?;
         let results = open_bucket(&jetstream, RESULTS_BUCKET).await?;
@@ -136,7 +155,11 @@ impl NatsStore {
         Ok(NatsStore {
             jetstream,
             queue,
-            consumer,
+            consumers: Default::default(),
+            last_lane: Mutex::default(),
+            published,
+            ack_wait: Duration::from_secs_f64(settings.ack_wait_s),
+            max_deliver: settings.max_deliver as i64 + 1,
             jobs,
             claims,
             results,
@@ -192,6 +215,72 @@ impl NatsStore {
         }
     }
 
+    /// Jobs on the queue (waiting or handed out) by lane, for the lanes that have any.
+    async fn lane_counts(&self, subjects: &str) -> StoreResult<Vec<(String, usize)>> {
+        let counts = self.queue.info_with_subjects(subjects).await.map_err(backend)?;
+        let counts: Vec<(String, usize)> = counts
+            .collect::<Vec<_>>()
+            .await
+            .into_iter()
+            .collect::<Result<_, _>>()
+            .map_err(backend)?;
+        Ok(counts
+            .into_iter()
+            .filter_map(|(subject, count)| Some((subject.strip_prefix("occluder.jobs.")?.to_string(), count)))
+            .filter(|(_, count)| *count > 0)
+            .collect())
+    }
+
+    /// The pull consumer of `lane`, made on first use (by any node: it is durable).
+    async fn lane_consumer(&self, lane: &str) -> StoreResult<consumer::PullConsumer> {
+        let mut consumers = self.consumers.lock().await;
+        if let Some(consumer) = consumers.get(lane) {
+            return Ok(consumer.clone());
+        }
+        let name = format!("{CONSUMER}-{lane}");
+        let consumer = self
+            .queue
+            .get_or_create_consumer(
+                &name,
+                consumer::pull::Config {
+                    durable_name: Some(name.clone()),
+                    filter_subject: lane_subject(lane),
+                    ack_policy: consumer::AckPolicy::Explicit,
+                    ack_wait: self.ack_wait,
+                    max_deliver: self.max_deliver,
+                    ..Default::default()
+                },
+            )
+            .await
+            .map_err(|e| backend(format!("cannot open the consumer {name}: {e}")))?;
+        consumers.insert(lane.to_string(), consumer.clone());
+        Ok(consumer)
+    }
+
+    /// A job waiting in one of the lanes, taken from the lane after the one served last.
+    async fn take_in_turn(&self) -> StoreResult<Option<jetstream::Message>> {
+        let mut lanes: Vec<String> = self
+            .lane_counts(QUEUE_SUBJECTS)
+            .await?
+            .into_iter()
+            .map(|(lane, _)| lane)
+            .collect();
+        lanes.sort();
+        let last = self.last_lane.lock().unwrap().clone();
+        let next = lanes.partition_point(|lane| *lane <= last);
+        lanes.rotate_left(next);
+        for lane in lanes {
+            let consumer = self.lane_consumer(&lane).await?;
+            // Without waiting: a lane whose jobs are all in workers' hands gives nothing.
+            let mut batch = consumer.fetch().max_messages(1).messages().await.map_err(backend)?;
+            if let Some(message) = batch.next().await {
+                *self.last_lane.lock().unwrap() = lane;
+                return message.map(Some).map_err(backend);
+            }
+        }
+        Ok(None)
+    }
+
     async fn record<T: serde::de::DeserializeOwned>(bucket: &kv::Store, key: &str) -> StoreResult<Option<T>> {
         bucket.get(key).await.map_err(backend)?.map(|v| decode(&v)).transpose()
     }
@@ -217,6 +306,51 @@ async fn open_bucket(jetstream: &jetstream::Context, name: &str) -> StoreResult<
         .await
         .map_err(|e| cannot(&e))?;
     jetstream.get_key_value(name).await.map_err(|e| cannot(&e))
+}
+
+/// The lane of an owner's jobs: a subject token made from its name, which may hold any
+/// character; `anyone` for jobs submitted without a token.
+fn lane(owner: Option<&str>) -> String {
+    match owner {
+        Some(name) => blake3::hash(name.as_bytes()).to_hex()[..16].to_string(),
+        None => "anyone".into(),
+    }
+}
+
+fn lane_subject(lane: &str) -> String {
+    format!("occluder.jobs.{lane}")
+}
+
+/// How a node signs in to NATS and checks its server: the credentials and the CA that the
+/// settings name. A `tls://` URL or a CA requires TLS.
+async fn connect_options(settings: &ServiceSettings) -> StoreResult<async_nats::ConnectOptions> {
+    let read = |what: &str, path: &str| {
+        std::fs::read_to_string(path)
+            .map(|text| text.trim().to_string())
+            .map_err(|e| StoreError::Backend(format!("cannot read {what} {path}: {e}")))
+    };
+    let mut options = async_nats::ConnectOptions::new();
+    if !settings.nats_creds_file.is_empty() {
+        options = options.credentials_file(&settings.nats_creds_file).await.map_err(|e| {
+            StoreError::Backend(format!(
+                "cannot read service.nats_creds_file {}: {e}",
+                settings.nats_creds_file
+            ))
+        })?;
+    } else if !settings.nats_nkey_file.is_empty() {
+        options = options.nkey(read("service.nats_nkey_file", &settings.nats_nkey_file)?);
+    } else if !settings.nats_user.is_empty() {
+        let password = match settings.nats_password_file.as_str() {
+            "" => String::new(),
+            path => read("service.nats_password_file", path)?,
+        };
+        options = options.user_and_password(settings.nats_user.clone(), password);
+    }
+    if !settings.nats_ca_cert.is_empty() {
+        options = options.add_root_certificates(settings.nats_ca_cert.clone().into());
+    }
+    let tls = !settings.nats_ca_cert.is_empty() || settings.nats_url.starts_with("tls://");
+    Ok(options.require_tls(tls))
 }
 
 fn input_blob(key: &str) -> String {
@@ -309,12 +443,12 @@ impl Store for NatsStore {
         Ok(())
     }
 
-    async fn enqueue(&self, id: &str) -> StoreResult<()> {
+    async fn enqueue(&self, job: &Job) -> StoreResult<()> {
         let publish = jetstream::message::PublishMessage::build()
-            .payload(id.to_string().into())
-            .message_id(id);
+            .payload(job.id.clone().into())
+            .message_id(&job.id);
         self.jetstream
-            .send_publish(QUEUE_SUBJECT, publish)
+            .send_publish(lane_subject(&lane(job.owner.as_deref())), publish)
             .await
             .map_err(backend)?
             .await
@@ -323,18 +457,19 @@ impl Store for NatsStore {
     }
 
     async fn next_job(&self, wait: Duration) -> StoreResult<Option<Box<dyn Delivery>>> {
-        let mut batch = self
-            .consumer
-            .fetch()
-            .max_messages(1)
-            .expires(wait)
-            .messages()
-            .await
-            .map_err(backend)?;
-        let Some(message) = batch.next().await else {
-            return Ok(None);
+        let deadline = tokio::time::Instant::now() + wait;
+        let message = loop {
+            // Listening before looking, so that a job published in between still wakes it.
+            let published = self.published.notified();
+            tokio::pin!(published);
+            published.as_mut().enable();
+            if let Some(message) = self.take_in_turn().await? {
+                break message;
+            }
+            if tokio::time::timeout_at(deadline, published).await.is_err() {
+                return Ok(None);
+            }
         };
-        let message = message.map_err(backend)?;
         let deliveries = message.info().map_err(backend)?.delivered.max(1) as u32;
         let id = String::from_utf8_lossy(&message.payload).into_owned();
         Ok(Some(Box::new(NatsDelivery {
@@ -347,6 +482,12 @@ impl Store for NatsStore {
     async fn queue_depth(&self) -> StoreResult<usize> {
         let info = self.queue.get_info().await.map_err(backend)?;
         Ok(info.state.messages as usize)
+    }
+
+    async fn queued_for(&self, owner: Option<&str>) -> StoreResult<usize> {
+        let lane = lane(owner);
+        let counts = self.lane_counts(&lane_subject(&lane)).await?;
+        Ok(counts.into_iter().map(|(_, count)| count).sum())
     }
 
     async fn put_input(&self, key: &str, input: &Input) -> StoreResult<()> {

@@ -6,7 +6,6 @@ use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, 
 use async_trait::async_trait;
 use std::collections::{HashMap, VecDeque};
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -20,26 +19,67 @@ pub struct SledStore {
     queue: Arc<Queue>,
 }
 
-/// Job ids waiting for a worker, with the times each was handed out before; the key of each
-/// job queued or running, by key; and the jobs queued or in a worker's hands.
+/// The jobs waiting for a worker, in one lane per owner; the key of each job queued or running,
+/// by key; and the jobs queued or in a worker's hands.
 #[derive(Default)]
 struct Queue {
-    waiting: Mutex<VecDeque<(String, u32)>>,
+    lanes: Mutex<Lanes>,
     ready: tokio::sync::Notify,
     claims: Mutex<HashMap<String, Claim>>,
-    unfinished: AtomicUsize,
+}
+
+/// Waiting job ids by owner, each with the times it was handed out before. Workers take from
+/// the owners in turn, so that one owner's burst does not hold back another's job.
+#[derive(Default)]
+struct Lanes {
+    waiting: HashMap<Option<String>, VecDeque<(String, u32)>>,
+    /// Owners with waiting jobs, the next to be served first.
+    turns: VecDeque<Option<String>>,
+    /// Jobs queued or in a worker's hands, by owner.
+    unfinished: HashMap<Option<String>, usize>,
 }
 
 impl Queue {
-    fn push(&self, id: String, delivered_before: u32) {
-        self.unfinished.fetch_add(1, Ordering::SeqCst);
-        self.waiting.lock().unwrap().push_back((id, delivered_before));
+    fn push(&self, id: String, owner: Option<String>, delivered_before: u32) {
+        let mut lanes = self.lanes.lock().unwrap();
+        *lanes.unfinished.entry(owner.clone()).or_default() += 1;
+        let lane = lanes.waiting.entry(owner.clone()).or_default();
+        lane.push_back((id, delivered_before));
+        if lane.len() == 1 {
+            lanes.turns.push_back(owner);
+        }
+        drop(lanes);
         self.ready.notify_one();
+    }
+
+    /// The next owner's oldest waiting job.
+    fn pop(&self) -> Option<(String, Option<String>, u32)> {
+        let mut lanes = self.lanes.lock().unwrap();
+        let owner = lanes.turns.pop_front()?;
+        let lane = lanes.waiting.get_mut(&owner).expect("an owner in turn has a lane");
+        let (id, before) = lane.pop_front().expect("an owner in turn has a waiting job");
+        if lane.is_empty() {
+            lanes.waiting.remove(&owner);
+        } else {
+            lanes.turns.push_back(owner.clone());
+        }
+        Some((id, owner, before))
+    }
+
+    fn finish(&self, owner: &Option<String>) {
+        let mut lanes = self.lanes.lock().unwrap();
+        if let Some(count) = lanes.unfinished.get_mut(owner) {
+            *count -= 1;
+            if *count == 0 {
+                lanes.unfinished.remove(owner);
+            }
+        }
     }
 }
 
 struct SledDelivery {
     id: String,
+    owner: Option<String>,
     deliveries: u32,
     queue: Arc<Queue>,
 }
@@ -60,7 +100,7 @@ impl Delivery for SledDelivery {
     }
 
     async fn finish(&self) -> StoreResult<()> {
-        self.queue.unfinished.fetch_sub(1, Ordering::SeqCst);
+        self.queue.finish(&self.owner);
         Ok(())
     }
 }
@@ -109,7 +149,7 @@ impl SledStore {
                 since_ms: job.created_ms,
             };
             self.queue.claims.lock().unwrap().insert(job.key.clone(), claim);
-            self.queue.push(job.id, job.attempts);
+            self.queue.push(job.id, job.owner, job.attempts);
         }
         self.db.flush().map_err(backend)?;
         Ok(())
@@ -181,17 +221,18 @@ impl Store for SledStore {
         Ok(())
     }
 
-    async fn enqueue(&self, id: &str) -> StoreResult<()> {
-        self.queue.push(id.to_string(), 0);
+    async fn enqueue(&self, job: &Job) -> StoreResult<()> {
+        self.queue.push(job.id.clone(), job.owner.clone(), 0);
         Ok(())
     }
 
     async fn next_job(&self, wait: Duration) -> StoreResult<Option<Box<dyn Delivery>>> {
         let deadline = tokio::time::Instant::now() + wait;
         loop {
-            if let Some((id, before)) = self.queue.waiting.lock().unwrap().pop_front() {
+            if let Some((id, owner, before)) = self.queue.pop() {
                 return Ok(Some(Box::new(SledDelivery {
                     id,
+                    owner,
                     deliveries: before + 1,
                     queue: Arc::clone(&self.queue),
                 })));
@@ -206,7 +247,12 @@ impl Store for SledStore {
     }
 
     async fn queue_depth(&self) -> StoreResult<usize> {
-        Ok(self.queue.unfinished.load(Ordering::SeqCst))
+        Ok(self.queue.lanes.lock().unwrap().unfinished.values().sum())
+    }
+
+    async fn queued_for(&self, owner: Option<&str>) -> StoreResult<usize> {
+        let lanes = self.queue.lanes.lock().unwrap();
+        Ok(lanes.unfinished.get(&owner.map(str::to_string)).copied().unwrap_or(0))
     }
 
     async fn put_input(&self, key: &str, input: &Input) -> StoreResult<()> {

@@ -33,7 +33,7 @@ impl Server {
     }
 
     /// Runs the binary with `args` and waits for its ready line.
-    pub fn spawn(args: &[&str], env: &[(&str, &str)]) -> Server {
+    pub fn spawn<S: AsRef<std::ffi::OsStr>>(args: &[S], env: &[(&str, &str)]) -> Server {
         let mut child = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
             .envs(env.iter().copied())
             .args(args)

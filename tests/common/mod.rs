@@ -122,6 +122,20 @@ pub fn cli(args: &[&str]) -> (i32, String, String) {
     )
 }
 
+/// A CA and a certificate for 127.0.0.1 and localhost that it signed: (CA PEM, cert PEM, key PEM).
+pub fn certificate_authority() -> (String, String, String) {
+    use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, IsCa, KeyPair};
+    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    let ca = CertifiedIssuer::self_signed(ca_params, KeyPair::generate().unwrap()).unwrap();
+    let key = KeyPair::generate().unwrap();
+    let cert = CertificateParams::new(vec!["127.0.0.1".to_string(), "localhost".to_string()])
+        .unwrap()
+        .signed_by(&key, &ca)
+        .unwrap();
+    (ca.pem(), cert.pem(), key.serialize_pem())
+}
+
 /// An ASCII FBX 7.4 cube in [0, 1]³, authored Z-up in metres, placed by a node mirrored in x and
 /// moved 10 along x.
 pub const FBX_MIRRORED_CUBE: &str = r#"; FBX 7.4.0 project file

@@ -20,6 +20,7 @@ pub mod level;
 pub mod mesh;
 pub mod occluder;
 pub mod service;
+pub mod soak;
 pub mod store;
 pub mod voxel;
 

@@ -50,6 +50,10 @@ enum Command {
     /// Fuzz ingest: mutate the corpus's meshes and read them; any panic or slow input is a
     /// finding, written to a folder, and the exit code is 1.
     Fuzz(cli::fuzz::FuzzArgs),
+    /// Soak a server of this binary: mixed load for a set time (new meshes, duplicates, cached
+    /// GETs, malformed and oversized bodies, calls without a token), killed with SIGKILL and
+    /// restarted on a schedule; jobs lost, wrong bytes, RSS and cached-GET p99 per minute.
+    Soak(cli::soak::SoakArgs),
 }
 
 fn main() {
@@ -100,6 +104,7 @@ fn run(parsed: Cli) -> Result<()> {
         Command::Convert(args) => cli::convert::run(args),
         Command::Fuzz(args) => cli::fuzz::run(args),
         Command::Token(args) => cli::token::run(args),
+        Command::Soak(args) => cli::soak::run(args),
         Command::Demo(args) => cli::demo::run(args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Serve(args) => cli::serve::run(args),

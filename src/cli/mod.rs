@@ -11,6 +11,7 @@ pub mod fuzz;
 pub mod key;
 pub mod level;
 pub mod serve;
+pub mod soak;
 pub mod submit;
 pub mod token;
 pub mod worker;

@@ -10,6 +10,9 @@
 //! mesh; 1,000 cached `GET /v1/occluders/{key}` through the API node; and, where `wrk` is
 //! installed, 10 s of cached GETs at 64 connections for the server's own rate and p99.
 //! The load generator shares the machine's cores with the nodes, as on a studio's CI box.
+//!
+//! Then cached GETs with a bearer token (`service.auth = "tokens"`), over plain HTTP and over
+//! HTTPS (a certificate from a CA made for the run), from the same threads and from wrk.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -18,12 +21,32 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+#[path = "../tests/common/tls.rs"]
+mod tls;
+use tls::certificate_authority;
+
 const CONNECTIONS: usize = 64;
 
 fn agent() -> ureq::Agent {
+    agent_trusting(None)
+}
+
+/// An agent that trusts the CA in `ca_pem`, if given, in place of the public roots.
+fn agent_trusting(ca_pem: Option<&str>) -> ureq::Agent {
+    let mut tls = ureq::tls::TlsConfig::builder();
+    if let Some(pem) = ca_pem {
+        let certs: Vec<_> = ureq::tls::parse_pem(pem.as_bytes())
+            .filter_map(|item| match item {
+                Ok(ureq::tls::PemItem::Certificate(cert)) => Some(cert),
+                _ => None,
+            })
+            .collect();
+        tls = tls.root_certs(ureq::tls::RootCerts::new_with_certs(&certs));
+    }
     ureq::Agent::config_builder()
         .http_status_as_error(false)
         .timeout_global(Some(Duration::from_secs(300)))
+        .tls_config(tls.build())
         .build()
         .into()
 }
@@ -40,6 +63,15 @@ fn mesh(i: usize) -> Vec<u8> {
 
 /// Runs `count` requests over `CONNECTIONS` threads; returns (latencies, errors, wall time).
 fn hammer(count: usize, request: impl Fn(&ureq::Agent, usize) -> bool + Sync) -> (Vec<Duration>, usize, Duration) {
+    hammer_trusting(None, count, request)
+}
+
+/// [`hammer`] with agents that trust `ca_pem`.
+fn hammer_trusting(
+    ca_pem: Option<&str>,
+    count: usize,
+    request: impl Fn(&ureq::Agent, usize) -> bool + Sync,
+) -> (Vec<Duration>, usize, Duration) {
     let next = AtomicUsize::new(0);
     let errors = AtomicUsize::new(0);
     let latencies = Mutex::new(Vec::with_capacity(count));
@@ -47,7 +79,7 @@ fn hammer(count: usize, request: impl Fn(&ureq::Agent, usize) -> bool + Sync) ->
     std::thread::scope(|s| {
         for _ in 0..CONNECTIONS {
             s.spawn(|| {
-                let agent = agent();
+                let agent = agent_trusting(ca_pem);
                 loop {
                     let i = next.fetch_add(1, Ordering::SeqCst);
                     if i >= count {
@@ -275,21 +307,6 @@ fn measure(mode: &str, base: &str, data: &Path) -> Row {
         format!("wrk.method = \"POST\"\nwrk.headers[\"Content-Type\"] = \"model/obj\"\nwrk.body = {body:?}\n"),
     )
     .unwrap();
-    let wrk = |what: &str, args: &[&str]| match Command::new("wrk")
-        .args(["-t2", &format!("-c{CONNECTIONS}"), "-d10s", "--latency"])
-        .args(args)
-        .output()
-    {
-        Ok(out) => {
-            let text = String::from_utf8_lossy(&out.stdout).into_owned();
-            println!("wrk, {what}:\n{text}");
-            Some(text)
-        }
-        Err(_) => {
-            println!("wrk not installed (apt-get install wrk): {what} not measured");
-            None
-        }
-    };
     let wrk_get = wrk("cached GET /v1/occluders/{key}", &[&url]).and_then(|text| wrk_figures(&text));
     wrk(
         "duplicate POST /v1/cook of a cached mesh",
@@ -303,6 +320,95 @@ fn measure(mode: &str, base: &str, data: &Path) -> Row {
         dup_p99_ms,
         get_p99_ms,
         wrk: wrk_get,
+    }
+}
+
+/// Cached GETs with a read token from a sled server with `service.auth = "tokens"`, over
+/// HTTPS when `tls`: (mode, ureq p99 ms, wrk figures).
+fn measure_with_token(tls: bool) -> (String, f64, Option<(f64, String)>) {
+    let mode = if tls { "sled, token, HTTPS" } else { "sled, token, HTTP" };
+    let data = scratch(if tls { "token-tls" } else { "token" });
+    std::fs::create_dir_all(&data).unwrap();
+    let tokens = data.join("tokens.toml");
+    let out = Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
+        .args(["token", "new", "--name", "bench", "--scopes", "read,cook", "--file"])
+        .arg(&tokens)
+        .output()
+        .unwrap();
+    let token = String::from_utf8(out.stdout).unwrap().trim().to_string();
+    let mut sets = vec![
+        "service.auth=tokens".to_string(),
+        format!("service.tokens_file={}", tokens.display()),
+    ];
+    let ca = tls.then(|| {
+        let (ca, cert, key) = certificate_authority();
+        std::fs::write(data.join("cert.pem"), cert).unwrap();
+        std::fs::write(data.join("key.pem"), key).unwrap();
+        sets.push(format!("service.tls_cert={}", data.join("cert.pem").display()));
+        sets.push(format!("service.tls_key={}", data.join("key.pem").display()));
+        ca
+    });
+    let mut args = vec!["serve", "--listen", "127.0.0.1:0", "--data-dir", data.to_str().unwrap()];
+    for set in &sets {
+        args.extend(["--set", set]);
+    }
+    let (server, ready) = spawn(&args);
+    let base = api_base(&ready).replace("http://", if tls { "https://" } else { "http://" });
+    let deployment = Deployment {
+        processes: vec![server],
+        base,
+        dirs: vec![data],
+    };
+    let authorization = format!("Bearer {token}");
+    let agent = agent_trusting(ca.as_deref());
+    let mut r = agent
+        .post(&format!("{}/v1/cook", deployment.base))
+        .header("Content-Type", "model/obj")
+        .header("Authorization", &authorization)
+        .send(&mesh(0)[..])
+        .unwrap();
+    let body: serde_json::Value = serde_json::from_slice(&r.body_mut().read_to_vec().unwrap()).unwrap();
+    let job = body["job"].as_str().unwrap();
+    while !agent
+        .get(&format!("{}/v1/jobs/{job}", deployment.base))
+        .header("Authorization", &authorization)
+        .call()
+        .unwrap()
+        .body_mut()
+        .read_to_string()
+        .unwrap()
+        .contains("\"done\"")
+    {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let url = format!("{}{}", deployment.base, body["result_url"].as_str().unwrap());
+    println!("== {mode}: {url}");
+    let (mut gets, errors, wall) = hammer_trusting(ca.as_deref(), 1000, |agent, _| {
+        ok_200(agent.get(&url).header("Authorization", &authorization).call())
+    });
+    let p99 = percentile(&mut gets, 0.99).as_secs_f64() * 1e3;
+    report("cached GET with a token", gets, errors, wall);
+    let header = format!("Authorization: {authorization}");
+    let wrk_get = wrk(&format!("{mode}, cached GET"), &["-H", &header, &url]).and_then(|text| wrk_figures(&text));
+    (mode.to_string(), p99, wrk_get)
+}
+
+/// Runs wrk for 10 s at `CONNECTIONS` with `args`; its output, None where it is not installed.
+fn wrk(what: &str, args: &[&str]) -> Option<String> {
+    match Command::new("wrk")
+        .args(["-t2", &format!("-c{CONNECTIONS}"), "-d10s", "--latency"])
+        .args(args)
+        .output()
+    {
+        Ok(out) => {
+            let text = String::from_utf8_lossy(&out.stdout).into_owned();
+            println!("wrk, {what}:\n{text}");
+            Some(text)
+        }
+        Err(_) => {
+            println!("wrk not installed (apt-get install wrk): {what} not measured");
+            None
+        }
     }
 }
 
@@ -366,5 +472,16 @@ fn main() {
             rate,
             p99
         );
+    }
+    let secured: Vec<_> = [false, true].into_iter().map(measure_with_token).collect();
+    println!(
+        "\n{:<42} {:>12} {:>11} {:>9}",
+        "cached GET with a token", "GET p99", "wrk GET/s", "wrk p99"
+    );
+    for (mode, p99, wrk) in &secured {
+        let (rate, wrk_p99) = wrk.as_ref().map_or(("-".to_string(), "-".to_string()), |(rate, p99)| {
+            (format!("{rate:.0}"), p99.clone())
+        });
+        println!("{mode:<42} {p99:>9.2} ms {rate:>11} {wrk_p99:>9}");
     }
 }

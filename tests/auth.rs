@@ -4,7 +4,8 @@
 
 mod common;
 use common::http::*;
-use common::{FBX_MIRRORED_CUBE, certificate_authority, cli};
+use common::tls::certificate_authority;
+use common::{FBX_MIRRORED_CUBE, cli};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 

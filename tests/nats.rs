@@ -53,7 +53,7 @@ impl Nats {
         let _ = std::fs::remove_dir_all(&dir);
         let secrets = dir.with_extension("secrets");
         std::fs::create_dir_all(&secrets).unwrap();
-        let (ca, cert, key) = common::certificate_authority();
+        let (ca, cert, key) = common::tls::certificate_authority();
         for (file, text) in [
             ("password", format!("{:032x}", fastrand::u128(..))),
             ("ca.pem", ca),
@@ -283,7 +283,7 @@ fn a_worker_killed_mid_job_hands_it_to_another_which_finishes_it_once() {
 #[test]
 fn a_job_that_keeps_killing_its_workers_fails_after_max_deliver() {
     let Some(nats) = Nats::start("poison") else { return };
-    let api = nats.api(&[]);
+    let api = nats.api(&["service.job_retention_s=1"]);
     let sets = [ACK_WAIT, "service.max_deliver=1"];
     let first = nats.worker(&sets);
     let accepted = submit(&api.base, SLOW, &slow_mesh());
@@ -299,6 +299,12 @@ fn a_job_that_keeps_killing_its_workers_fails_after_max_deliver() {
     // The poisoned key is free again: a new submission is a new job.
     let again = submit(&api.base, SLOW, &slow_mesh());
     assert_ne!(again["job"], job);
+    // The failed job's record is collected after service.job_retention_s.
+    let started = Instant::now();
+    while get(&format!("{}/v1/jobs/{job}", api.base), &[]).status != 404 {
+        assert!(started.elapsed() < Duration::from_secs(30), "the failed job's record stays");
+        std::thread::sleep(Duration::from_millis(200));
+    }
 }
 
 #[test]

@@ -613,3 +613,67 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
     assert!(kept, "the second upload's input is kept");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A level over service.job_timeout_s fails with `timeout`; the meshes of a failed or refused
+/// level leave no input behind; the results' bytes count their inputs; ended jobs' records go
+/// after service.job_retention_s unless they made a stored result.
+#[test]
+fn failed_and_refused_work_leaves_nothing_behind_and_old_jobs_are_collected() {
+    let dir = data_dir("collect");
+    let server = Server::start(
+        &dir,
+        &[
+            "service.workers=1",
+            "service.max_resolution=512",
+            "service.job_timeout_s=1",
+            "service.job_retention_s=1",
+        ],
+    );
+    let base = &server.base;
+    let levels = format!("{base}/v1/levels");
+    let slow_mesh = obj_text(&torus(1.0, 0.45, 48, 24));
+    let manifest = level_manifest(&[("t.obj", 0.0), ("t.obj", 4.0)]);
+    let (content_type, body) = multipart(&[("manifest", "level.json", &manifest), ("mesh", "t.obj", &slow_mesh)]);
+    let slow = post(&format!("{levels}?resolution=384"), Some(&content_type), &body).json();
+    let level_job = slow["job"].as_str().unwrap().to_string();
+    let failed = wait_for(base, &level_job, Duration::from_secs(120));
+    assert_eq!(failed["error"]["code"], "timeout", "{failed}");
+    let cube = small_mesh(31);
+    let singular = br#"{"instances":[{"mesh":"c.obj","transform":[1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]}]}"#;
+    let (content_type, body) = multipart(&[("manifest", "m.json", singular), ("mesh", "c.obj", &cube)]);
+    post(&levels, Some(&content_type), &body).assert_error(422, "bad_level");
+    let kept = small_mesh(30);
+    let done = post(&format!("{base}/v1/cook"), Some("model/obj"), &kept).json();
+    let done_job = done["job"].as_str().unwrap().to_string();
+    assert_eq!(wait_for(base, &done_job, Duration::from_secs(60))["state"], "done");
+
+    let started = Instant::now();
+    while get(&format!("{base}/v1/jobs/{level_job}"), &[]).status != 404 {
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "the failed level's record is never collected"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    assert_eq!(
+        get(&format!("{base}/v1/jobs/{done_job}"), &[]).json()["state"],
+        "done",
+        "it made a result"
+    );
+    let key = done["key"].as_str().unwrap();
+    let glb = get(&format!("{base}/v1/occluders/{key}"), &[]).body.len();
+    let report = get(&format!("{base}/v1/occluders/{key}/report"), &[]).body.len();
+    let metrics = String::from_utf8(get(&format!("{base}/metrics"), &[]).body).unwrap();
+    let input = 1 + "obj".len() + kept.len();
+    assert!(
+        metrics.contains(&format!("occluder_cache_bytes {}\n", glb + report + input)),
+        "GLB {glb} + report {report} + input {input}: {metrics}"
+    );
+    assert!(server.terminate().success());
+    // Only the done job's input is left in the store.
+    let db = sled::open(&dir).unwrap();
+    assert_eq!(db.open_tree("inputs").unwrap().len(), 1);
+    drop(db);
+    let _ = std::fs::remove_dir_all(&dir);
+}

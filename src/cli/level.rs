@@ -43,7 +43,8 @@ pub fn run(args: LevelArgs) -> Result<()> {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
-    let baked = tokio::runtime::Runtime::new()?.block_on(level::bake(&level, &settings, &store, &progress))?;
+    let never = |_: &str, _: f64| Ok(());
+    let baked = tokio::runtime::Runtime::new()?.block_on(level::bake(&level, &settings, &store, &progress, &never))?;
     bar.finish_and_clear();
     write(&args.output, &baked.glb)?;
     let batches = args

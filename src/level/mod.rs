@@ -9,7 +9,7 @@ pub mod cull;
 pub mod hidden;
 
 use crate::config::Settings;
-use crate::cook::cook;
+use crate::cook::cook_with_progress;
 use crate::key::cache_key;
 use crate::mesh::{Format, Mesh, glb, load_bytes, point_bounds};
 use crate::store::{Input, ResultMeta, Store, StoreError, job::now_ms};
@@ -262,12 +262,15 @@ pub struct Baked {
 }
 
 /// Cooks (or finds in `store`) every unique mesh, places the instances and merges them into
-/// batches. `progress(done, total)` is told as unique meshes are ready.
+/// batches. `progress(done, total)` is told as unique meshes are ready; `halt` is asked before
+/// each stage of each mesh's cook, and an error from it stops the bake (its meshes then end as
+/// [`crate::cook::CookError::Stopped`]).
 pub async fn bake(
     level: &Level,
     settings: &Settings,
     store: &dyn Store,
     progress: &(dyn Fn(usize, usize) + Sync),
+    halt: crate::cook::Progress<'_>,
 ) -> Result<Baked, LevelError> {
     let mut timings = crate::cook::Timings::default();
     let started = Instant::now();
@@ -290,7 +293,7 @@ pub async fn bake(
     let cooked: Vec<_> = misses
         .into_par_iter()
         .map(|(m, key, (input, mesh, stats))| {
-            let cooked = cook(mesh, stats, 0.0, settings, false);
+            let cooked = cook_with_progress(mesh, stats, 0.0, settings, false, halt);
             let finished = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
             progress(finished, unique.len());
             (m, key, input, cooked)
@@ -436,7 +439,7 @@ async fn file_result(
     store.put_input(key, input).await.map_err(cache_error)?;
     let meta = ResultMeta {
         job: "level".into(),
-        bytes: (glb.len() + report.len()) as u64,
+        bytes: (glb.len() + report.len() + input.encode().len()) as u64,
         created_ms: now_ms(),
     };
     store.put_result(key, &glb, &report, &meta).await.map_err(cache_error)?;

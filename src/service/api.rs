@@ -543,7 +543,28 @@ async fn submit_level(
     let multipart = multipart.map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, "bad_multipart", e.body_text()))?;
     let (manifest, parts) = read_level_parts(multipart).await?;
     let uploads = key_uploads(parts, settings.cook.clone(), settings.ingest_limits()).await?;
-    let key_of = file_level_meshes(service, &manifest, uploads).await?;
+    let (key_of, filed) = file_level_meshes(service, &manifest, uploads).await?;
+    let queued = queue_level(service, manifest, key_of, settings, owner_of(&caller)).await;
+    if queued.is_err() {
+        // Refused: nothing will cook the meshes just filed for it.
+        for key in &filed {
+            if let Err(e) = service.store.delete_input(key).await {
+                tracing::warn!(key, error = %e, "cannot delete a refused level's mesh");
+            }
+        }
+    }
+    queued
+}
+
+/// Files the job of a level whose meshes are filed, under the key of its manifest (every mesh
+/// as its key) and settings.
+async fn queue_level(
+    service: &Service,
+    manifest: Manifest,
+    key_of: HashMap<String, String>,
+    settings: crate::config::Settings,
+    owner: Option<String>,
+) -> Result<Response, ApiError> {
     // Every mesh as its key: the level's input, and what its key is made of.
     let resolved = Manifest {
         name: manifest.name,
@@ -583,10 +604,7 @@ async fn submit_level(
         format: super::LEVEL_FORMAT.into(),
         bytes,
     };
-    submitted(
-        &key,
-        service.submit(&key, input, settings_json, owner_of(&caller)).await,
-    )
+    submitted(&key, service.submit(&key, input, settings_json, owner).await)
 }
 
 /// A level upload's manifest and its mesh parts by name; every part must be used by an instance.
@@ -648,16 +666,18 @@ async fn key_uploads(
 }
 
 /// Files the uploads' inputs where their results are not cached, and maps each mesh name of the
-/// manifest to its key: an upload's, or a key the store knows.
+/// manifest to its key: an upload's, or a key the store knows. Also returns the keys filed.
 async fn file_level_meshes(
     service: &Service,
     manifest: &Manifest,
     uploads: Vec<(String, String, Input)>,
-) -> Result<HashMap<String, String>, ApiError> {
+) -> Result<(HashMap<String, String>, Vec<String>), ApiError> {
     let mut key_of: HashMap<String, String> = HashMap::new();
+    let mut filed = Vec::new();
     for (name, key, input) in uploads {
         if service.result_meta(&key).await.map_err(ApiError::storage)?.is_none() {
             service.store.put_input(&key, &input).await.map_err(ApiError::storage)?;
+            filed.push(key.clone());
         }
         key_of.insert(name, key);
     }
@@ -672,7 +692,7 @@ async fn file_level_meshes(
             key_of.insert(mesh.clone(), mesh);
         }
     }
-    Ok(key_of)
+    Ok((key_of, filed))
 }
 
 /// 200 with the job that made a cached result, 202 with `Location` for a queued one.

@@ -35,6 +35,13 @@ pub struct Service {
     seen: Mutex<HashMap<blake3::Hash, String>>,
 }
 
+/// What a job made: its GLB and report, and the bytes of the input kept beside them.
+struct Made {
+    glb: Vec<u8>,
+    report: Vec<u8>,
+    input_bytes: u64,
+}
+
 /// Raised to stop a running job at its next stage.
 type Stop = Arc<std::sync::atomic::AtomicBool>;
 
@@ -369,10 +376,14 @@ impl Service {
             let (progress, tending, stop) = self.tend(&job, Arc::clone(&delivery));
             let cooked = self.cook(&job, progress, stop).await;
             let stored = match cooked {
-                Ok((glb, report)) => {
+                Ok(Made {
+                    glb,
+                    report,
+                    input_bytes,
+                }) => {
                     let meta = ResultMeta {
                         job: job.id.clone(),
-                        bytes: (glb.len() + report.len()) as u64,
+                        bytes: (glb.len() + report.len()) as u64 + input_bytes,
                         created_ms: now_ms(),
                     };
                     let key = job.key.clone();
@@ -410,6 +421,9 @@ impl Service {
                 tracing::warn!(job = job.id, error = e.message, "job failed");
                 job.state = JobState::Failed;
                 job.error = Some(e);
+                if job.kind == JobKind::Level {
+                    self.drop_level_parts(&job).await;
+                }
                 self.drop_input(&job).await;
             }
         }
@@ -429,6 +443,49 @@ impl Service {
             self.evict().await;
         }
         self.update_gauges().await;
+    }
+
+    /// Deletes the records of jobs that ended more than `service.job_retention_s` ago, except
+    /// those that made a stored result (a broken result is remade with their settings).
+    pub async fn collect_jobs(&self) -> StoreResult<usize> {
+        let makers: std::collections::HashSet<String> = self
+            .store
+            .results()
+            .await?
+            .into_iter()
+            .map(|(_, meta)| meta.job)
+            .collect();
+        let retention_ms = (self.settings.service.job_retention_s * 1e3) as u64;
+        let mut collected = 0;
+        for id in self.store.ended_jobs(now_ms().saturating_sub(retention_ms)).await? {
+            if !makers.contains(&id) {
+                self.store.delete_job(&id).await?;
+                collected += 1;
+            }
+        }
+        metrics::counter!("occluder_jobs_collected_total").increment(collected as u64);
+        Ok(collected)
+    }
+
+    /// Deletes the inputs of a failed level's uploaded meshes that have no result: nothing
+    /// cooks them now, and the next upload of the level sends them again.
+    async fn drop_level_parts(&self, job: &Job) {
+        let Ok(Some(input)) = self.store.input(&job.key).await else {
+            return;
+        };
+        let Ok(manifest) = crate::level::parse_manifest("the level", &input.bytes) else {
+            return;
+        };
+        let mut keys: Vec<&str> = manifest.instances.iter().map(|i| i.mesh.as_str()).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        for key in keys {
+            if matches!(self.store.result_meta(key).await, Ok(None))
+                && let Err(e) = self.store.delete_input(key).await
+            {
+                tracing::warn!(job = job.id, key, error = %e, "cannot delete a failed level's mesh");
+            }
+        }
     }
 
     /// Deletes the input of `job`, which has failed, unless another job holds its key now (and
@@ -485,12 +542,7 @@ impl Service {
     }
 
     /// Ingests and cooks on a blocking thread; a panic fails this job only.
-    async fn cook(
-        self: &Arc<Self>,
-        job: &Job,
-        progress: watch::Sender<Job>,
-        stop: Stop,
-    ) -> Result<(Vec<u8>, Vec<u8>), JobError> {
+    async fn cook(self: &Arc<Self>, job: &Job, progress: watch::Sender<Job>, stop: Stop) -> Result<Made, JobError> {
         let fail = |code: &str, message: String| JobError {
             code: code.into(),
             message,
@@ -500,8 +552,14 @@ impl Service {
             Ok(None) => return Err(fail("input_missing", "the uploaded mesh is gone".into())),
             Err(e) => return Err(fail("storage", e.to_string())),
         };
+        let input_bytes = input.encode().len() as u64;
         if job.kind == JobKind::Level {
-            return self.bake_level(job, input, progress).await;
+            let (glb, report) = self.bake_level(job, input, progress, stop).await?;
+            return Ok(Made {
+                glb,
+                report,
+                input_bytes,
+            });
         }
         let mut settings = self.settings.clone();
         match serde_json::from_value(job.settings.clone()) {
@@ -518,28 +576,12 @@ impl Service {
                 .map_err(|e| fail("bad_mesh", e.to_string()))?;
             let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
             let progress = |stage: &str, done: f64| {
-                if stop.load(std::sync::atomic::Ordering::Relaxed) {
-                    return Err(CANCELLED.to_string());
-                }
-                if start.elapsed().as_secs_f64() > limit {
-                    return Err(TIMEOUT.to_string());
-                }
+                halt(&stop, start, limit)?;
                 service.set_progress(&running, &progress, stage, done);
                 Ok(())
             };
-            let cooked =
-                cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress).map_err(|e| match e {
-                    CookError::Stopped { stage, reason } if reason == TIMEOUT => fail(
-                        TIMEOUT,
-                        format!(
-                            "the job ran past service.job_timeout_s ({limit} s) and stopped before stage `{stage}`"
-                        ),
-                    ),
-                    CookError::Stopped { stage, reason } => {
-                        fail(&reason, format!("cancelled; stopped before stage `{stage}`"))
-                    }
-                    CookError::Gpu(e) => fail("gpu", e.to_string()),
-                })?;
+            let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress)
+                .map_err(|e| cook_failure(e, limit))?;
             for (stage, ms) in &cooked.report.timings_ms.0 {
                 metrics::histogram!("occluder_cook_stage_seconds", "stage" => stage.clone()).record(ms / 1e3);
             }
@@ -548,7 +590,12 @@ impl Service {
             Ok((cooked.glb(), report))
         });
         match work.await {
-            Ok(result) => result,
+            Ok(Ok((glb, report))) => Ok(Made {
+                glb,
+                report,
+                input_bytes,
+            }),
+            Ok(Err(e)) => Err(e),
             Err(e) => Err(fail("panic", format!("the cook crashed: {e}"))),
         }
     }
@@ -604,6 +651,7 @@ impl Service {
         job: &Job,
         input: store::Input,
         progress: watch::Sender<Job>,
+        stop: Stop,
     ) -> Result<(Vec<u8>, Vec<u8>), JobError> {
         let fail = |code: &str, message: String| JobError {
             code: code.into(),
@@ -621,14 +669,24 @@ impl Service {
         let running = job.clone();
         let runtime = tokio::runtime::Handle::current();
         // The bake is CPU-bound (rayon) between its store calls: it runs on a blocking thread.
+        let limit = self.settings.service.job_timeout_s;
         let work = tokio::task::spawn_blocking(move || {
+            let start = std::time::Instant::now();
             let progress = |done: usize, total: usize| {
                 service.set_progress(&running, &progress, "meshes", 0.95 * done as f64 / total.max(1) as f64)
             };
-            runtime.block_on(crate::level::bake(&level, &settings, service.store.as_ref(), &progress))
+            let halt = |_: &str, _: f64| halt(&stop, start, limit);
+            runtime.block_on(crate::level::bake(
+                &level,
+                &settings,
+                service.store.as_ref(),
+                &progress,
+                &halt,
+            ))
         });
         let baked = match work.await {
             Ok(Ok(baked)) => baked,
+            Ok(Err(crate::level::LevelError::Cook(e))) => return Err(cook_failure(e, limit)),
             Ok(Err(e @ crate::level::LevelError::Cache(_))) => return Err(fail("storage", e.to_string())),
             Ok(Err(e)) => return Err(fail("bad_level", e.to_string())),
             Err(e) => return Err(fail("panic", format!("the bake crashed: {e}"))),
@@ -675,6 +733,31 @@ impl Service {
             self.cache.lock().unwrap().remove(&key);
         }
     }
+}
+
+/// Why a running job must stop now: cancelled (its flag raised) or past `limit` seconds since
+/// `start`.
+fn halt(stop: &Stop, start: std::time::Instant, limit: f64) -> Result<(), String> {
+    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+        return Err(CANCELLED.to_string());
+    }
+    if start.elapsed().as_secs_f64() > limit {
+        return Err(TIMEOUT.to_string());
+    }
+    Ok(())
+}
+
+/// The job error of a cook that did not finish; `limit` is service.job_timeout_s.
+fn cook_failure(e: CookError, limit: f64) -> JobError {
+    let (code, message) = match e {
+        CookError::Stopped { stage, reason } if reason == TIMEOUT => (
+            TIMEOUT.to_string(),
+            format!("the job ran past service.job_timeout_s ({limit} s) and stopped before stage `{stage}`"),
+        ),
+        CookError::Stopped { stage, reason } => (reason, format!("cancelled; stopped before stage `{stage}`")),
+        CookError::Gpu(e) => ("gpu".to_string(), e.to_string()),
+    };
+    JobError { code, message }
 }
 
 /// Retries a store write that failed (a NATS server restarting, say) for up to half a minute.
@@ -781,6 +864,7 @@ pub async fn serve(settings: Settings, api_only: bool, insecure_no_auth: bool) -
     if let Some(tokens) = tokens {
         tokio::spawn(reload_on_hangup(tokens));
     }
+    tokio::spawn(collect_jobs_periodically(Arc::clone(&service)));
     let tls = match (&service.settings.service.tls_cert, &service.settings.service.tls_key) {
         (cert, key) if !cert.is_empty() => Some(tls::Tls::open(cert.as_ref(), key.as_ref()).await?),
         _ => None,
@@ -848,6 +932,21 @@ fn is_loopback(listen: &str) -> bool {
     match listen.parse::<std::net::SocketAddr>() {
         Ok(address) => address.ip().is_loopback(),
         Err(_) => listen.rsplit_once(':').is_some_and(|(host, _)| host == "localhost"),
+    }
+}
+
+/// Collects ended jobs' records at start and then every `service.job_retention_s`, at most
+/// every 10 minutes.
+async fn collect_jobs_periodically(service: Arc<Service>) {
+    let every = Duration::from_secs_f64(service.settings.service.job_retention_s.min(600.0));
+    let mut ticks = tokio::time::interval(every);
+    loop {
+        ticks.tick().await;
+        match service.collect_jobs().await {
+            Ok(0) => {}
+            Ok(n) => tracing::info!(jobs = n, "collected the records of jobs past service.job_retention_s"),
+            Err(e) => tracing::warn!(error = %e, "cannot collect old job records"),
+        }
     }
 }
 

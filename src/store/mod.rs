@@ -68,7 +68,7 @@ impl Input {
 pub struct ResultMeta {
     /// The job that made it.
     pub job: String,
-    /// Bytes of the GLB and the report together.
+    /// Bytes of the GLB, the report and the input kept beside them, together.
     pub bytes: u64,
     pub created_ms: u64,
 }
@@ -119,6 +119,9 @@ pub trait Store: Send + Sync + 'static {
         Ok(())
     }
     async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
+    /// Ids of the jobs that ended (done or failed) before `before_ms`, ms since the epoch.
+    async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>>;
+    async fn delete_job(&self, id: &str) -> StoreResult<()>;
 
     /// Claims `key` for the job `id`, unless a job holds it already: then that claim.
     async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>>;

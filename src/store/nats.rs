@@ -406,6 +406,34 @@ impl Store for NatsStore {
         Self::record(&self.jobs, id).await
     }
 
+    async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>> {
+        let ids: Vec<String> = self
+            .jobs
+            .keys()
+            .await
+            .map_err(backend)?
+            .collect::<Vec<_>>()
+            .await
+            .into_iter()
+            .collect::<Result<_, _>>()
+            .map_err(backend)?;
+        let mut ended = Vec::new();
+        for id in ids {
+            let job: Option<Job> = Self::record(&self.jobs, &id).await?;
+            if let Some(job) = job.filter(|j| j.state.is_finished() && j.updated_ms < before_ms) {
+                ended.push(job.id);
+            }
+        }
+        Ok(ended)
+    }
+
+    async fn delete_job(&self, id: &str) -> StoreResult<()> {
+        // Purged from the bucket's stream: a KV delete would leave a marker behind for each id.
+        let subject = format!("{}{id}", self.jobs.prefix);
+        self.jobs.stream.purge().filter(subject).await.map_err(backend)?;
+        Ok(())
+    }
+
     async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>> {
         let claim = Claim {
             job: id.to_string(),

@@ -200,6 +200,23 @@ impl Store for SledStore {
         self.jobs.get(id).map_err(backend)?.map(|v| decode(&v)).transpose()
     }
 
+    async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>> {
+        let mut ended = Vec::new();
+        for entry in self.jobs.iter() {
+            let (_, value) = entry.map_err(backend)?;
+            let job: Job = decode(&value)?;
+            if job.state.is_finished() && job.updated_ms < before_ms {
+                ended.push(job.id);
+            }
+        }
+        Ok(ended)
+    }
+
+    async fn delete_job(&self, id: &str) -> StoreResult<()> {
+        self.jobs.remove(id).map_err(backend)?;
+        Ok(())
+    }
+
     async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>> {
         let mut claims = self.queue.claims.lock().unwrap();
         if let Some(holder) = claims.get(key) {

@@ -302,7 +302,10 @@ fn a_job_that_keeps_killing_its_workers_fails_after_max_deliver() {
     // The failed job's record is collected after service.job_retention_s.
     let started = Instant::now();
     while get(&format!("{}/v1/jobs/{job}", api.base), &[]).status != 404 {
-        assert!(started.elapsed() < Duration::from_secs(30), "the failed job's record stays");
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "the failed job's record stays"
+        );
         std::thread::sleep(Duration::from_millis(200));
     }
 }

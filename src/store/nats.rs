@@ -281,6 +281,19 @@ impl NatsStore {
         Ok(None)
     }
 
+    /// Every key of a bucket.
+    async fn keys(bucket: &kv::Store) -> StoreResult<Vec<String>> {
+        bucket
+            .keys()
+            .await
+            .map_err(backend)?
+            .collect::<Vec<_>>()
+            .await
+            .into_iter()
+            .collect::<Result<_, _>>()
+            .map_err(backend)
+    }
+
     async fn record<T: serde::de::DeserializeOwned>(bucket: &kv::Store, key: &str) -> StoreResult<Option<T>> {
         bucket.get(key).await.map_err(backend)?.map(|v| decode(&v)).transpose()
     }
@@ -407,16 +420,7 @@ impl Store for NatsStore {
     }
 
     async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>> {
-        let ids: Vec<String> = self
-            .jobs
-            .keys()
-            .await
-            .map_err(backend)?
-            .collect::<Vec<_>>()
-            .await
-            .into_iter()
-            .collect::<Result<_, _>>()
-            .map_err(backend)?;
+        let ids = Self::keys(&self.jobs).await?;
         let mut ended = Vec::new();
         for id in ids {
             let job: Option<Job> = Self::record(&self.jobs, &id).await?;
@@ -561,16 +565,7 @@ impl Store for NatsStore {
     }
 
     async fn results(&self) -> StoreResult<Vec<(String, ResultMeta)>> {
-        let keys: Vec<String> = self
-            .results
-            .keys()
-            .await
-            .map_err(backend)?
-            .collect::<Vec<_>>()
-            .await
-            .into_iter()
-            .collect::<Result<_, _>>()
-            .map_err(backend)?;
+        let keys = Self::keys(&self.results).await?;
         let mut out = Vec::with_capacity(keys.len());
         for key in keys {
             if let Some(meta) = self.result_meta(&key).await? {

@@ -50,6 +50,7 @@ pub struct ServiceSettings {
     pub token_submission_burst: f64,
     pub token_max_queued: usize,
     pub job_retention_s: f64,
+    pub sled_cache_bytes: u64,
     pub tls_cert: String,
     pub tls_key: String,
     pub nats_user: String,
@@ -299,6 +300,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("service.max_queue", v.max_queue as f64, 1.0, 1e7)?;
     check("service.token_max_queued", v.token_max_queued as f64, 1.0, 1e7)?;
     check("service.job_retention_s", v.job_retention_s, 1.0, 1e9)?;
+    check("service.sled_cache_bytes", v.sled_cache_bytes as f64, 1048576.0, 1e12)?;
     if v.tls_cert.is_empty() != v.tls_key.is_empty() {
         return Err(ConfigError::Invalid {
             key: if v.tls_cert.is_empty() {

@@ -387,3 +387,52 @@ fn submit_over_https_trusts_the_ca_it_is_given_and_a_renewed_certificate_needs_n
     assert!(server.terminate().success());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn level_bakes_on_a_server_with_a_token() {
+    let (dir, file) = folder_with_tokens_file("level");
+    let token = new_token(&file, "artist", "read,cook");
+    let server = start_with_tokens(&dir, &file, &[]);
+    let work = dir.join("work");
+    std::fs::create_dir_all(&work).unwrap();
+    std::fs::write(work.join("box.obj"), small_mesh(40)).unwrap();
+    let manifest = work.join("level.json");
+    std::fs::write(
+        &manifest,
+        r#"{"instances":[
+            {"mesh":"box.obj","transform":[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]},
+            {"mesh":"box.obj","transform":[1,0,0,0, 0,1,0,0, 0,0,1,0, 5,0,0,1]}]}"#,
+    )
+    .unwrap();
+    let out = work.join("level.glb");
+    let report = work.join("report.json");
+    let level = |token: &str| {
+        cli(&[
+            "level",
+            manifest.to_str().unwrap(),
+            "--server",
+            &server.base,
+            "--token",
+            token,
+            "-o",
+            out.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
+            "--set",
+            "cook.resolution=48",
+        ])
+    };
+    let (code, stdout, stderr) = level("not-a-token");
+    assert_eq!(code, 2, "{stdout}{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    let (code, stdout, stderr) = level(&token);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    assert!(stdout.contains("2 instances of 1 unique meshes"), "{stdout}");
+    assert_eq!(&std::fs::read(&out).unwrap()[..4], b"glTF");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(report["instances"], 2);
+    let batches: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(work.join("level.batches.json")).unwrap()).unwrap();
+    assert_eq!(batches.as_array().map(Vec::len), Some(1), "{batches}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -555,7 +555,7 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
     // The failed job's upload is gone from the store; the done one's stays, to remake its result.
     let inputs = tokio::runtime::Runtime::new().unwrap().block_on(async {
         use occluder_cook::store::Store;
-        let store = occluder_cook::store::sled::SledStore::open(&dir).unwrap();
+        let store = occluder_cook::store::sled::SledStore::open(&dir, 1 << 24).unwrap();
         let kept = async |key: &Value| store.input(key.as_str().unwrap()).await.unwrap().is_some();
         (kept(&slow["key"]).await, kept(&quick["key"]).await)
     });
@@ -607,7 +607,7 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
     // Cancelled while queued, its input went when the worker came to it; sent again, it is back.
     let kept = tokio::runtime::Runtime::new().unwrap().block_on(async {
         use occluder_cook::store::Store;
-        let store = occluder_cook::store::sled::SledStore::open(&dir).unwrap();
+        let store = occluder_cook::store::sled::SledStore::open(&dir, 1 << 24).unwrap();
         store.input(queued_key.as_str().unwrap()).await.unwrap().is_some()
     });
     assert!(kept, "the second upload's input is kept");

@@ -1,7 +1,7 @@
 use super::{SettingsArgs, path_setting, write};
 use anyhow::{Context, Result};
 use clap::Args;
-use occluder_cook::level::{self, LevelReport};
+use occluder_cook::level;
 use occluder_cook::store::sled::SledStore;
 use std::path::{Path, PathBuf};
 
@@ -18,20 +18,26 @@ pub struct LevelArgs {
     #[arg(long)]
     batches: Option<PathBuf>,
     /// service.data_dir: the cache.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "server")]
     data_dir: Option<PathBuf>,
+    /// Bake on a server instead (a JSON manifest, with the meshes it names next to it).
+    #[command(flatten)]
+    server: Option<super::ServerArgs>,
     #[command(flatten)]
     settings: SettingsArgs,
 }
 
 pub fn run(args: LevelArgs) -> Result<()> {
+    if let Some(server) = &args.server {
+        return run_on_server(server, &args);
+    }
     let settings = args
         .settings
-        .load_with(&[("service.data_dir", path_setting(args.data_dir))])?;
+        .load_with(&[("service.data_dir", path_setting(args.data_dir.clone()))])?;
     let level = level::load(&args.manifest, &settings.ingest_limits())?;
     let dir = settings.service.data_dir();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let store = SledStore::open(&dir)
+    let store = SledStore::open(&dir, settings.service.sled_cache_bytes)
         .with_context(|| "the cache is in use (a server on the same data_dir?): pass --data-dir".to_string())?;
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
@@ -47,30 +53,60 @@ pub fn run(args: LevelArgs) -> Result<()> {
     let baked = tokio::runtime::Runtime::new()?.block_on(level::bake(&level, &settings, &store, &progress, &never))?;
     bar.finish_and_clear();
     write(&args.output, &baked.glb)?;
-    let batches = args
+    write_outputs(
+        &args,
+        &serde_json::to_value(&baked.report)?,
+        &serde_json::to_value(&baked.batches)?,
+    )
+}
+
+/// Uploads the manifest and its meshes to `/v1/levels`, waits, and writes what a local bake
+/// writes.
+fn run_on_server(server: &super::ServerArgs, args: &LevelArgs) -> Result<()> {
+    // Only cook and level settings travel with a level; the server checks them again.
+    let query: Vec<(String, String)> = args
+        .settings
+        .overrides()?
+        .into_iter()
+        .filter(|(k, _)| (k.starts_with("cook.") && k != "cook.max_placed_triangles") || k.starts_with("level."))
+        .map(|(k, v)| (k, super::query_value(v)))
+        .collect();
+    let (_, mut report) = server.client()?.submit_level(&args.manifest, &query, &args.output)?;
+    // The server's report holds the batch list where a local one holds their count.
+    let batches = report["batches"].take();
+    report["batches"] = batches.as_array().map_or(0, Vec::len).into();
+    write_outputs(args, &report, &batches)
+}
+
+/// The batch list, the report if asked for, and the summary line.
+fn write_outputs(args: &LevelArgs, report: &serde_json::Value, batches: &serde_json::Value) -> Result<()> {
+    let batches_path = args
         .batches
+        .clone()
         .unwrap_or_else(|| args.output.with_extension("batches.json"));
-    write(&batches, &serde_json::to_vec_pretty(&baked.batches)?)?;
-    if let Some(path) = args.report {
-        write(&path, &serde_json::to_vec_pretty(&baked.report)?)?;
+    write(&batches_path, &serde_json::to_vec_pretty(batches)?)?;
+    if let Some(path) = &args.report {
+        write(path, &serde_json::to_vec_pretty(report)?)?;
     }
-    summarize(&args.manifest, &baked.report);
+    summarize(&args.manifest, report);
     Ok(())
 }
 
-fn summarize(manifest: &Path, r: &LevelReport) {
+fn summarize(manifest: &Path, r: &serde_json::Value) {
+    let total_ms: f64 = r["timings_ms"].as_object().map_or(0.0, |stages| {
+        stages.values().filter_map(serde_json::Value::as_f64).sum()
+    });
     println!(
         "{}: {} instances of {} unique meshes ({} cached), {} batches, {} occluder triangles \
-         ({} placed source triangles), draw calls {} -> {}, {:.0} ms",
+         ({} placed source triangles), draw calls {} -> {}, {total_ms:.0} ms",
         manifest.display(),
-        r.instances,
-        r.unique_meshes,
-        r.cache_hits,
-        r.batches,
-        r.triangles_after,
-        r.triangles_before,
-        r.draw_calls_before,
-        r.draw_calls_after,
-        r.timings_ms.total()
+        r["instances"],
+        r["unique_meshes"],
+        r["cache_hits"],
+        r["batches"],
+        r["triangles_after"],
+        r["triangles_before"],
+        r["draw_calls_before"],
+        r["draw_calls_after"],
     );
 }

@@ -123,6 +123,14 @@ impl ServerArgs {
     }
 }
 
+/// A setting's value as a query parameter: strings bare, the rest as TOML writes them.
+fn query_value(value: toml::Value) -> String {
+    match value {
+        toml::Value::String(s) => s,
+        other => other.to_string(),
+    }
+}
+
 /// A path as a setting's value.
 fn path_setting(path: Option<PathBuf>) -> Option<String> {
     path.map(|p| p.display().to_string())

@@ -27,13 +27,7 @@ pub fn run(args: SubmitArgs) -> Result<()> {
         .overrides()?
         .into_iter()
         .filter(|(k, _)| k.starts_with("cook.") && k != "cook.max_placed_triangles")
-        .map(|(k, v)| {
-            let value = match v {
-                toml::Value::String(s) => s,
-                other => other.to_string(),
-            };
-            (k, value)
-        })
+        .map(|(k, v)| (k, super::query_value(v)))
         .collect();
     let out_dir = client::output_dir(args.out_dir)?;
     let client = args.server.client()?;

@@ -198,6 +198,58 @@ impl Client {
         Ok(key)
     }
 
+    /// Uploads a level manifest with the meshes it names (files next to it; a name with no file
+    /// must be the key of a mesh the server has), waits for the bake, and returns its key and
+    /// report; the level's GLB is written to `out`.
+    pub fn submit_level(
+        &self,
+        manifest: &Path,
+        query: &[(String, String)],
+        out: &Path,
+    ) -> Result<(String, Value), Exit> {
+        let name = manifest.display().to_string();
+        let text = std::fs::read(manifest).map_err(|e| Exit::Local(format!("cannot read {name}: {e}")))?;
+        let parsed = crate::level::parse_manifest(&name, &text).map_err(|e| Exit::Local(e.to_string()))?;
+        let dir = manifest.parent().unwrap_or(Path::new("."));
+        let mut meshes: Vec<&str> = parsed.instances.iter().map(|i| i.mesh.as_str()).collect();
+        meshes.sort_unstable();
+        meshes.dedup();
+        let mut parts = vec![("manifest".to_string(), "level.json".to_string(), text.clone())];
+        for mesh in meshes {
+            let file = dir.join(mesh);
+            if file.is_file() {
+                let bytes =
+                    std::fs::read(&file).map_err(|e| Exit::Local(format!("cannot read {}: {e}", file.display())))?;
+                parts.push(("mesh".into(), mesh.to_string(), bytes));
+            } else if !crate::level::is_key(&mesh.to_ascii_lowercase()) {
+                return Err(Exit::Local(format!(
+                    "{name}: mesh `{mesh}` is neither a file next to the manifest nor a key"
+                )));
+            }
+        }
+        let (content_type, body) = multipart(&parts);
+        let mut url = format!("{}/v1/levels?", self.server);
+        for (k, v) in query {
+            url.push_str(&format!("{}={}&", urlencoding::encode(k), urlencoding::encode(v)));
+        }
+        let accepted = self
+            .reply(
+                self.authorized(self.agent.post(url.trim_end_matches(['?', '&'])))
+                    .content_type(&content_type)
+                    .send(&body[..]),
+                &name,
+            )?
+            .check(&name)?
+            .json();
+        let key = accepted["key"].as_str().unwrap_or_default().to_string();
+        if let Some(job) = accepted["job"].as_str() {
+            self.wait(job, &name)?;
+        }
+        self.fetch(&key, out)?;
+        let report = self.get(&format!("/v1/occluders/{key}/report"))?.check(&name)?.json();
+        Ok((key, report))
+    }
+
     /// Polls a job until it ends, with a progress bar on stderr.
     fn wait(&self, job: &str, name: &str) -> Result<(), Exit> {
         let bar = ProgressBar::new(1000);
@@ -231,6 +283,26 @@ impl Client {
             }
         }
     }
+}
+
+/// A multipart/form-data body of (field, file name, bytes) parts, and its content type.
+fn multipart(parts: &[(String, String, Vec<u8>)]) -> (String, Vec<u8>) {
+    let boundary = format!("occluder-cook-{:016x}", fastrand::u64(..));
+    let mut body = Vec::new();
+    for (field, file, bytes) in parts {
+        let file = file.replace(['"', '\r', '\n'], "_");
+        body.extend_from_slice(
+            format!(
+                "--{boundary}\r\nContent-Disposition: form-data; name=\"{field}\"; filename=\"{file}\"\r\n\
+                 Content-Type: application/octet-stream\r\n\r\n"
+            )
+            .as_bytes(),
+        );
+        body.extend_from_slice(bytes);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
 }
 
 /// The output folder, created if needed.

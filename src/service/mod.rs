@@ -825,7 +825,10 @@ async fn open_store(settings: &Settings) -> anyhow::Result<Arc<dyn Store>> {
     }
     let dir = settings.service.data_dir();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    Ok(Arc::new(store::sled::SledStore::open(&dir)?))
+    Ok(Arc::new(store::sled::SledStore::open(
+        &dir,
+        settings.service.sled_cache_bytes,
+    )?))
 }
 
 /// Resolves on SIGTERM or Ctrl-C.

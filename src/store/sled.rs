@@ -110,8 +110,13 @@ fn backend(e: impl std::fmt::Display) -> StoreError {
 }
 
 impl SledStore {
-    pub fn open(dir: &Path) -> StoreResult<SledStore> {
-        let db = sled::open(dir).map_err(|e| StoreError::Backend(format!("cannot open {}: {e}", dir.display())))?;
+    /// Opens (or makes) the database in `dir`, keeping at most `cache_bytes` of it in memory.
+    pub fn open(dir: &Path, cache_bytes: u64) -> StoreResult<SledStore> {
+        let db = sled::Config::default()
+            .path(dir)
+            .cache_capacity(cache_bytes)
+            .open()
+            .map_err(|e| StoreError::Backend(format!("cannot open {}: {e}", dir.display())))?;
         let tree = |name: &str| db.open_tree(name).map_err(backend);
         let store = SledStore {
             jobs: tree("jobs")?,

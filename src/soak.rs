@@ -28,6 +28,8 @@ pub struct SoakOptions {
     pub dir: PathBuf,
     /// The binary to run as the server.
     pub binary: PathBuf,
+    /// `service.*` settings for the server, as `KEY=VALUE`.
+    pub server_settings: Vec<String>,
 }
 
 /// What a soak saw.
@@ -207,7 +209,7 @@ fn start(options: &SoakOptions, tokens: &Path, listen: &str) -> Result<Server, S
     command
         .args(["serve", "--listen", listen, "--data-dir"])
         .arg(options.dir.join("data"));
-    for set in &sets {
+    for set in sets.iter().chain(&options.server_settings) {
         command.args(["--set", set]);
     }
     let mut child = command

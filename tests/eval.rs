@@ -30,3 +30,46 @@ fn an_occluder_beside_the_mesh_shows_false_pixels_from_every_side() {
     assert_eq!(q.false_pixels, 0, "{q:?}");
     assert!(q.coverage > 0.2, "{q:?}");
 }
+
+/// The preview sheet: four views and a caption, false pixels in red exactly where the occluder
+/// shows in front of or beside the original, none for one inside it.
+#[test]
+fn the_preview_paints_false_pixels_red_and_only_those() {
+    use occluder_cook::eval::preview::{Caption, sheet};
+    use occluder_cook::occluder::Occluder;
+    let original = cuboid(Vec3::splat(-0.5), Vec3::splat(0.5), &[]);
+    let caption = |triangles_out| Caption {
+        name: "cube".into(),
+        triangles_in: 12,
+        triangles_out,
+        judged: None,
+    };
+    let solid = |mesh| Occluder {
+        solid: mesh,
+        panels: Vec::new(),
+    };
+    // Red in the views, above the caption (whose key has a red swatch).
+    let views = 2 * occluder_cook::eval::preview::VIEW_PIXELS as u32;
+    let red = |image: &image::RgbImage| {
+        image
+            .enumerate_pixels()
+            .filter(|(_, y, p)| *y < views && p.0 == [220, 20, 30])
+            .count()
+    };
+    let inside = solid(cuboid(Vec3::splat(-0.4), Vec3::splat(0.4), &[]));
+    let (image, false_pixels) = sheet(&original, &inside, &caption(12));
+    assert_eq!((false_pixels, red(&image)), (0, 0));
+    assert!(image.width() >= 640 && image.height() > image.width());
+    // Sticking out of the cube on +x: seen from the front, the top and three-quarters.
+    let sticking_out = solid(cuboid(Vec3::splat(-0.4), Vec3::new(0.9, 0.4, 0.4), &[]));
+    let (image, false_pixels) = sheet(&original, &sticking_out, &caption(12));
+    println!("{false_pixels} false pixels, {} red", red(&image));
+    assert!(false_pixels > 1000, "{false_pixels}");
+    assert_eq!(
+        red(&image) as u64,
+        false_pixels,
+        "every false pixel is red, and nothing else"
+    );
+    let png = occluder_cook::eval::preview::png(&image);
+    assert_eq!(&png[1..4], b"PNG");
+}

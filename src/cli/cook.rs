@@ -1,6 +1,7 @@
-use super::{SettingsArgs, summarize, write, write_occluder};
+use super::{SettingsArgs, summarize, write, write_occluder, write_preview};
 use anyhow::Result;
 use clap::Args;
+use occluder_cook::eval::preview::Caption;
 use occluder_cook::{cook, mesh};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -17,6 +18,10 @@ pub struct CookArgs {
     /// Measure coverage, false pixels and outside samples into the report.
     #[arg(long)]
     eval: bool,
+    /// Write a PNG sheet of four views: the original in grey, the occluder over it by kind of
+    /// piece, false pixels in red.
+    #[arg(long, value_name = "PNG")]
+    preview: Option<PathBuf>,
     #[command(flatten)]
     settings: SettingsArgs,
 }
@@ -27,10 +32,21 @@ pub fn run(args: CookArgs) -> Result<()> {
     cook::mark_stage("ingest");
     let (mesh, stats) = mesh::load_file(&args.input, &settings.ingest_limits())?;
     let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
+    let original = args.preview.is_some().then(|| mesh.clone());
     let cooked = cook::cook(mesh, stats, ingest_ms, &settings, args.eval)?;
     write_occluder(&args.output, &cooked)?;
     if let Some(path) = args.report {
         write(&path, &serde_json::to_vec_pretty(&cooked.report)?)?;
+    }
+    if let (Some(path), Some(original)) = (&args.preview, original) {
+        let r = &cooked.report;
+        let caption = Caption {
+            name: super::file_name(&args.input),
+            triangles_in: r.input.triangles,
+            triangles_out: r.occluder.triangles,
+            judged: r.quality.as_ref().map(|q| (q.coverage, q.false_pixels, q.views)),
+        };
+        write_preview(path, &original, &cooked.occluder, &caption)?;
     }
     summarize(&args.input, &cooked.report);
     Ok(())

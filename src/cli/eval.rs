@@ -13,6 +13,10 @@ pub struct EvalArgs {
     /// Also write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Write a PNG sheet of four views: the original in grey, the occluder over it, false
+    /// pixels in red.
+    #[arg(long, value_name = "PNG")]
+    preview: Option<PathBuf>,
     #[command(flatten)]
     settings: SettingsArgs,
 }
@@ -53,6 +57,20 @@ pub fn run(args: EvalArgs) -> Result<()> {
     println!("outside samples    {:.3}% of {}", q.outside_samples * 100.0, q.samples);
     if let Some(path) = args.json {
         write(&path, &serde_json::to_vec_pretty(&q)?)?;
+    }
+    if let Some(path) = &args.preview {
+        let caption = occluder_cook::eval::preview::Caption {
+            name: super::file_name(&args.original),
+            triangles_in: original_mesh.triangles.len(),
+            triangles_out: occluder_mesh.triangles.len(),
+            judged: Some((q.coverage, q.false_pixels, q.views)),
+        };
+        // Any mesh may be judged: it is drawn as one solid.
+        let occluder = occluder_cook::occluder::Occluder {
+            solid: occluder_mesh,
+            panels: Vec::new(),
+        };
+        super::write_preview(path, &original_mesh, &occluder, &caption)?;
     }
     Ok(())
 }

@@ -123,6 +123,28 @@ impl ServerArgs {
     }
 }
 
+/// A file's name, for captions.
+fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Draws the preview sheet and writes it as PNG; says how many false pixels its views show.
+fn write_preview(
+    path: &Path,
+    original: &occluder_cook::mesh::Mesh,
+    occluder: &occluder_cook::occluder::Occluder,
+    caption: &occluder_cook::eval::preview::Caption,
+) -> Result<()> {
+    let (sheet, false_pixels) = occluder_cook::eval::preview::sheet(original, occluder, caption);
+    write(path, &occluder_cook::eval::preview::png(&sheet))?;
+    eprintln!(
+        "preview: {} ({false_pixels} false pixels in its 4 views)",
+        path.display()
+    );
+    Ok(())
+}
+
 /// A setting's value as a query parameter: strings bare, the rest as TOML writes them.
 fn query_value(value: toml::Value) -> String {
     match value {

@@ -22,6 +22,9 @@ pub struct SoakArgs {
     /// Writes the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// A `service.*` setting for the soaked server, KEY=VALUE (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    server_settings: Vec<String>,
 }
 
 /// `90`, `90s`, `10m` or `1h`.
@@ -48,6 +51,9 @@ pub fn run(args: SoakArgs) -> Result<()> {
     if args.clients == 0 || args.clients > 256 {
         bail!("--clients must be 1 to 256");
     }
+    if let Some(other) = args.server_settings.iter().find(|s| !s.starts_with("service.")) {
+        bail!("--set {other}: only service.* settings (the soak computes keys with the default cook settings)");
+    }
     let _ = std::fs::remove_dir_all(&args.dir);
     let options = SoakOptions {
         duration: args.duration,
@@ -55,6 +61,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
         clients: args.clients,
         dir: args.dir,
         binary: std::env::current_exe().context("cannot find this binary")?,
+        server_settings: args.server_settings,
     };
     let report = soak(&options).map_err(anyhow::Error::msg)?;
     for minute in &report.minutes {

@@ -2,5 +2,6 @@
 //! outside samples, triangles.
 
 pub mod metrics;
+pub mod preview;
 
 pub use metrics::{EvalSettings, Quality, ViewSet, evaluate, evaluate_where_it_can};

@@ -1,0 +1,220 @@
+//! Preview sheets: the occluder over its original, as a technical artist judges it. Four views
+//! (front, side, top, three-quarter) of the original shaded in grey, with the occluder over it in
+//! a translucent colour per kind of piece, false pixels in red, and a caption.
+
+use crate::geom::camera::View;
+use crate::geom::raster::rasterize;
+use crate::mesh::Mesh;
+use crate::occluder::{Occluder, Shape};
+use glam::DVec3;
+use image::{Rgb, RgbImage};
+
+/// What the caption says.
+pub struct Caption {
+    /// The mesh's name.
+    pub name: String,
+    pub triangles_in: usize,
+    pub triangles_out: usize,
+    /// Coverage and false pixels from the report's evaluation, with its view count; None: the
+    /// sheet's own four views give them, and the caption says so.
+    pub judged: Option<(f64, u64, usize)>,
+}
+
+/// The pixels of one view's side.
+pub const VIEW_PIXELS: usize = 320;
+/// Height of the caption strip.
+const CAPTION_PIXELS: u32 = 64;
+const BACKGROUND: Rgb<u8> = Rgb([246, 246, 242]);
+const FALSE_PIXEL: Rgb<u8> = Rgb([220, 20, 30]);
+const TEXT: Rgb<u8> = Rgb([30, 30, 36]);
+
+/// The colour of each kind of piece.
+fn colour(shape: Shape) -> [f64; 3] {
+    match shape {
+        Shape::Boxes => [40.0, 110.0, 230.0],
+        Shape::Quads => [30.0, 170.0, 90.0],
+        Shape::Patches => [235.0, 150.0, 20.0],
+    }
+}
+
+/// The four views: name and direction towards the camera (y up).
+const VIEWS: [(&str, [f64; 3]); 4] = [
+    ("front", [0.0, 0.0, 1.0]),
+    ("side", [1.0, 0.0, 0.0]),
+    ("top", [0.0, 1.0, 0.0]),
+    ("three-quarter", [1.0, 0.8, 1.0]),
+];
+
+/// The sheet, and the false pixels counted in its four views.
+pub fn sheet(original: &Mesh, occluder: &Occluder, caption: &Caption) -> (RgbImage, u64) {
+    let mut both = original.clone();
+    both.append(&occluder.mesh());
+    // The union's frame: an occluder sticking out sideways shows too.
+    let (center, radius) = both.bounding_sphere();
+    let side = VIEW_PIXELS as u32;
+    let mut image = RgbImage::from_pixel(2 * side, 2 * side + CAPTION_PIXELS, BACKGROUND);
+    let (mut false_pixels, mut covered, mut seen) = (0u64, 0u64, 0u64);
+    for (i, (name, dir)) in VIEWS.iter().enumerate() {
+        let view = View::new(DVec3::from_array(*dir).normalize(), center, radius, VIEW_PIXELS);
+        let drawn = draw_view(&view, original, occluder);
+        false_pixels += drawn.false_pixels;
+        covered += drawn.covered;
+        seen += drawn.seen;
+        let (x0, y0) = ((i as u32 % 2) * side, (i as u32 / 2) * side);
+        for (p, rgb) in drawn.pixels.iter().enumerate() {
+            image.put_pixel(x0 + (p % VIEW_PIXELS) as u32, y0 + (p / VIEW_PIXELS) as u32, *rgb);
+        }
+        text(&mut image, x0 + 6, y0 + 6, 1, name);
+    }
+    let figures = match caption.judged {
+        Some((coverage, false_pixels, views)) => {
+            format!(
+                "coverage {:.1}%, {false_pixels} false pixels ({views} views)",
+                coverage * 100.0
+            )
+        }
+        None => format!(
+            "coverage {:.1}%, {false_pixels} false pixels (these 4 views)",
+            100.0 * covered as f64 / seen.max(1) as f64
+        ),
+    };
+    let y = 2 * side + 8;
+    let legend_left = legend(&mut image, 2 * side - 8, y);
+    // The name up to the legend; the rest of a long name is left out.
+    let fits = (legend_left.saturating_sub(16) / 16) as usize;
+    text(
+        &mut image,
+        8,
+        y,
+        2,
+        &caption.name.chars().take(fits).collect::<String>(),
+    );
+    let triangles = format!("{} -> {} triangles", caption.triangles_in, caption.triangles_out);
+    text(&mut image, 8, y + 22, 2, &triangles);
+    text(&mut image, 8, y + 44, 1, &figures);
+    (image, false_pixels)
+}
+
+/// One view drawn: its pixels, row by row from the top, and its figures.
+struct Drawn {
+    pixels: Vec<Rgb<u8>>,
+    false_pixels: u64,
+    covered: u64,
+    seen: u64,
+}
+
+/// The original's nearest depth and shade per pixel, then the occluder's nearest depth and kind
+/// over it, composed.
+fn draw_view(view: &View, original: &Mesh, occluder: &Occluder) -> Drawn {
+    let n = view.pixels * view.pixels;
+    let (mut depth, mut shade) = (vec![f64::INFINITY; n], vec![0.0f64; n]);
+    for tri in original.triangles_f64() {
+        let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+        let lit = 0.35 + 0.6 * normal.dot(view.dir).abs();
+        rasterize(view, &tri, |i, d| {
+            if d < depth[i] {
+                depth[i] = d;
+                shade[i] = lit;
+            }
+        });
+    }
+    let mut near = vec![f64::INFINITY; n];
+    let mut kind = vec![Shape::Boxes; n];
+    let pieces = occluder
+        .solid
+        .triangles_f64()
+        .map(|t| (t, Shape::Boxes))
+        .chain(occluder.panels.iter().flat_map(|p| p.triangles().map(|t| (t, p.shape))));
+    for (tri, shape) in pieces {
+        rasterize(view, &tri, |i, d| {
+            if d < near[i] {
+                near[i] = d;
+                kind[i] = shape;
+            }
+        });
+    }
+    let tolerance = view.depth_tolerance();
+    let mut drawn = Drawn {
+        pixels: Vec::with_capacity(n),
+        false_pixels: 0,
+        covered: 0,
+        seen: 0,
+    };
+    // Pixel rows run bottom-up in the raster; images top-down.
+    for row in (0..view.pixels).rev() {
+        for i in row * view.pixels..(row + 1) * view.pixels {
+            let visible = depth[i].is_finite();
+            drawn.seen += u64::from(visible);
+            let base = match visible {
+                true => [shade[i] * 200.0; 3],
+                false => BACKGROUND.0.map(f64::from),
+            };
+            let rgb = if !near[i].is_finite() {
+                base
+            } else if !visible || near[i] < depth[i] - tolerance {
+                drawn.false_pixels += 1;
+                FALSE_PIXEL.0.map(f64::from)
+            } else {
+                drawn.covered += 1;
+                let c = colour(kind[i]);
+                [0, 1, 2].map(|k| 0.45 * base[k] + 0.55 * c[k])
+            };
+            drawn.pixels.push(Rgb(rgb.map(|v| v.clamp(0.0, 255.0) as u8)));
+        }
+    }
+    drawn
+}
+
+/// The key to the colours, right-aligned at `right`; returns where it starts.
+fn legend(image: &mut RgbImage, right: u32, y: u32) -> u32 {
+    let entries = [
+        ("boxes", colour(Shape::Boxes)),
+        ("quads", colour(Shape::Quads)),
+        ("patches", colour(Shape::Patches)),
+        ("false", FALSE_PIXEL.0.map(f64::from)),
+    ];
+    let mut x = right;
+    for (name, rgb) in entries.iter().rev() {
+        x -= 8 * name.len() as u32 + 20;
+        for dy in 0..10 {
+            for dx in 0..10 {
+                image.put_pixel(x + dx, y + 1 + dy, Rgb(rgb.map(|v| v as u8)));
+            }
+        }
+        text(image, x + 14, y + 2, 1, name);
+    }
+    x
+}
+
+/// Writes `line` at (x, y) in the 8×8 bitmap font, each dot `scale` pixels wide; what does not
+/// fit is cut off.
+fn text(image: &mut RgbImage, x: u32, y: u32, scale: u32, line: &str) {
+    use font8x8::UnicodeFonts;
+    for (i, ch) in line.chars().enumerate() {
+        let glyph = font8x8::BASIC_FONTS.get(ch).or_else(|| font8x8::BASIC_FONTS.get('?'));
+        let Some(glyph) = glyph else { continue };
+        for (row, bits) in glyph.iter().enumerate() {
+            for col in 0..8 {
+                if bits & (1 << col) == 0 {
+                    continue;
+                }
+                for (dx, dy) in (0..scale).flat_map(|dx| (0..scale).map(move |dy| (dx, dy))) {
+                    let px = x + (i as u32 * 8 + col) * scale + dx;
+                    let py = y + row as u32 * scale + dy;
+                    if px < image.width() && py < image.height() {
+                        image.put_pixel(px, py, TEXT);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The sheet as PNG bytes.
+pub fn png(image: &RgbImage) -> Vec<u8> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    image
+        .write_to(&mut bytes, image::ImageFormat::Png)
+        .expect("a PNG encodes in memory");
+    bytes.into_inner()
+}

@@ -35,8 +35,7 @@ fn an_occluder_beside_the_mesh_shows_false_pixels_from_every_side() {
 /// shows in front of or beside the original, none for one inside it.
 #[test]
 fn the_preview_paints_false_pixels_red_and_only_those() {
-    use occluder_cook::eval::preview::{Caption, sheet};
-    use occluder_cook::occluder::Occluder;
+    use occluder_cook::eval::preview::{Caption, Piece, pieces_of_mesh, sheet};
     let original = cuboid(Vec3::splat(-0.5), Vec3::splat(0.5), &[]);
     let caption = |triangles_out| Caption {
         name: "cube".into(),
@@ -44,10 +43,7 @@ fn the_preview_paints_false_pixels_red_and_only_those() {
         triangles_out,
         judged: None,
     };
-    let solid = |mesh| Occluder {
-        solid: mesh,
-        panels: Vec::new(),
-    };
+    let solid = |mesh| pieces_of_mesh(&mesh, Piece::Solid);
     // Red in the views, above the caption (whose key has a red swatch).
     let views = 2 * occluder_cook::eval::preview::VIEW_PIXELS as u32;
     let red = |image: &image::RgbImage| {

@@ -430,6 +430,19 @@ fn a_level_is_baked_over_the_api_from_uploads_and_keys() {
     // The same level again is the same key, already baked.
     let again = post(&levels, Some(&content_type), &body);
     assert_eq!((again.status, again.json()["key"].as_str()), (200, Some(key.as_str())));
+    get(&format!("{base}/v1/occluders/{key}/preview.png"), &[]).assert_error(404, "no_preview");
+    // A mesh's preview sheet: drawn once from its kept input and GLB, then served as stored.
+    let sheet = get(&format!("{base}/v1/occluders/{known}/preview.png"), &[]);
+    assert_eq!(sheet.status, 200, "{}", String::from_utf8_lossy(&sheet.body));
+    assert_eq!(sheet.header("content-type"), Some("image/png"));
+    assert!(sheet.header("cache-control").is_some_and(|c| c.contains("immutable")));
+    let image = image::load_from_memory(&sheet.body).unwrap();
+    assert!(image.width() >= 640 && image.height() > image.width());
+    assert_eq!(
+        get(&format!("{base}/v1/occluders/{known}/preview.png"), &[]).body,
+        sheet.body
+    );
+    get(&format!("{base}/v1/occluders/{}/preview.png", "0".repeat(64)), &[]).assert_error(404, "no_preview");
 
     // Bad levels: JSON errors naming the problem, and the server keeps serving.
     let cube = obj_text(&cuboid(Vec3::ZERO, Vec3::ONE, &[]));

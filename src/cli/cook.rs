@@ -1,7 +1,7 @@
 use super::{SettingsArgs, summarize, write, write_occluder, write_preview};
 use anyhow::Result;
 use clap::Args;
-use occluder_cook::eval::preview::Caption;
+use occluder_cook::eval::preview::{self, Caption};
 use occluder_cook::{cook, mesh};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -46,7 +46,7 @@ pub fn run(args: CookArgs) -> Result<()> {
             triangles_out: r.occluder.triangles,
             judged: r.quality.as_ref().map(|q| (q.coverage, q.false_pixels, q.views)),
         };
-        write_preview(path, &original, &cooked.occluder, &caption)?;
+        write_preview(path, &original, &preview::pieces(&cooked.occluder), &caption)?;
     }
     summarize(&args.input, &cooked.report);
     Ok(())

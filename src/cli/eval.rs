@@ -59,17 +59,15 @@ pub fn run(args: EvalArgs) -> Result<()> {
         write(&path, &serde_json::to_vec_pretty(&q)?)?;
     }
     if let Some(path) = &args.preview {
-        let caption = occluder_cook::eval::preview::Caption {
+        use occluder_cook::eval::preview;
+        let caption = preview::Caption {
             name: super::file_name(&args.original),
             triangles_in: original_mesh.triangles.len(),
             triangles_out: occluder_mesh.triangles.len(),
             judged: Some((q.coverage, q.false_pixels, q.views)),
         };
         // Any mesh may be judged: it is drawn as one solid.
-        let occluder = occluder_cook::occluder::Occluder {
-            solid: occluder_mesh,
-            panels: Vec::new(),
-        };
+        let occluder = preview::pieces_of_mesh(&occluder_mesh, preview::Piece::Solid);
         super::write_preview(path, &original_mesh, &occluder, &caption)?;
     }
     Ok(())

@@ -133,7 +133,7 @@ fn file_name(path: &Path) -> String {
 fn write_preview(
     path: &Path,
     original: &occluder_cook::mesh::Mesh,
-    occluder: &occluder_cook::occluder::Occluder,
+    occluder: &[occluder_cook::eval::preview::PieceTriangle],
     caption: &occluder_cook::eval::preview::Caption,
 ) -> Result<()> {
     let (sheet, false_pixels) = occluder_cook::eval::preview::sheet(original, occluder, caption);

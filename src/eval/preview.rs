@@ -28,13 +28,58 @@ const BACKGROUND: Rgb<u8> = Rgb([246, 246, 242]);
 const FALSE_PIXEL: Rgb<u8> = Rgb([220, 20, 30]);
 const TEXT: Rgb<u8> = Rgb([30, 30, 36]);
 
-/// The colour of each kind of piece.
-fn colour(shape: Shape) -> [f64; 3] {
-    match shape {
-        Shape::Boxes => [40.0, 110.0, 230.0],
-        Shape::Quads => [30.0, 170.0, 90.0],
-        Shape::Patches => [235.0, 150.0, 20.0],
+/// The kinds of piece an occluder is drawn in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Piece {
+    Boxes,
+    Quads,
+    Patches,
+    /// Double-sided rectangles whose kind is not known (read back from a GLB).
+    Panels,
+    /// A mesh judged as a whole (any occluder, ours or not).
+    Solid,
+}
+
+impl Piece {
+    fn name(self) -> &'static str {
+        match self {
+            Piece::Boxes => "boxes",
+            Piece::Quads => "quads",
+            Piece::Patches => "patches",
+            Piece::Panels => "panels",
+            Piece::Solid => "occluder",
+        }
     }
+
+    fn colour(self) -> [f64; 3] {
+        match self {
+            Piece::Boxes | Piece::Solid => [40.0, 110.0, 230.0],
+            Piece::Quads | Piece::Panels => [30.0, 170.0, 90.0],
+            Piece::Patches => [235.0, 150.0, 20.0],
+        }
+    }
+}
+
+/// A triangle of the occluder and its kind of piece.
+pub type PieceTriangle = ([DVec3; 3], Piece);
+
+/// The triangles of a cooked occluder, each with its kind.
+pub fn pieces(occluder: &Occluder) -> Vec<PieceTriangle> {
+    let solid = occluder.solid.triangles_f64().map(|t| (t, Piece::Boxes));
+    let panels = occluder.panels.iter().flat_map(|p| {
+        let piece = match p.shape {
+            Shape::Boxes => Piece::Boxes,
+            Shape::Quads => Piece::Quads,
+            Shape::Patches => Piece::Patches,
+        };
+        p.triangles().map(|t| (t, piece))
+    });
+    solid.chain(panels).collect()
+}
+
+/// The triangles of a mesh, all of one kind.
+pub fn pieces_of_mesh(mesh: &Mesh, piece: Piece) -> Vec<PieceTriangle> {
+    mesh.triangles_f64().map(|t| (t, piece)).collect()
 }
 
 /// The four views: name and direction towards the camera (y up).
@@ -46,11 +91,9 @@ const VIEWS: [(&str, [f64; 3]); 4] = [
 ];
 
 /// The sheet, and the false pixels counted in its four views.
-pub fn sheet(original: &Mesh, occluder: &Occluder, caption: &Caption) -> (RgbImage, u64) {
-    let mut both = original.clone();
-    both.append(&occluder.mesh());
+pub fn sheet(original: &Mesh, occluder: &[PieceTriangle], caption: &Caption) -> (RgbImage, u64) {
     // The union's frame: an occluder sticking out sideways shows too.
-    let (center, radius) = both.bounding_sphere();
+    let (center, radius) = union_sphere(original, occluder);
     let side = VIEW_PIXELS as u32;
     let mut image = RgbImage::from_pixel(2 * side, 2 * side + CAPTION_PIXELS, BACKGROUND);
     let (mut false_pixels, mut covered, mut seen) = (0u64, 0u64, 0u64);
@@ -79,7 +122,10 @@ pub fn sheet(original: &Mesh, occluder: &Occluder, caption: &Caption) -> (RgbIma
         ),
     };
     let y = 2 * side + 8;
-    let legend_left = legend(&mut image, 2 * side - 8, y);
+    let mut kinds: Vec<Piece> = occluder.iter().map(|t| t.1).collect();
+    kinds.sort_by_key(|k| *k as u8);
+    kinds.dedup();
+    let legend_left = legend(&mut image, 2 * side - 8, y, &kinds);
     // The name up to the legend; the rest of a long name is left out.
     let fits = (legend_left.saturating_sub(16) / 16) as usize;
     text(
@@ -103,9 +149,24 @@ struct Drawn {
     seen: u64,
 }
 
+/// A sphere around both meshes: their bounding boxes' joint centre and the farthest corner.
+fn union_sphere(original: &Mesh, occluder: &[PieceTriangle]) -> (DVec3, f64) {
+    let points = original
+        .triangles_f64()
+        .flatten()
+        .chain(occluder.iter().flat_map(|t| t.0));
+    let (lo, hi) = points.fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+        (lo.min(p), hi.max(p))
+    });
+    if !lo.is_finite() {
+        return (DVec3::ZERO, 1.0);
+    }
+    ((lo + hi) * 0.5, ((hi - lo).length() * 0.5).max(1e-9))
+}
+
 /// The original's nearest depth and shade per pixel, then the occluder's nearest depth and kind
 /// over it, composed.
-fn draw_view(view: &View, original: &Mesh, occluder: &Occluder) -> Drawn {
+fn draw_view(view: &View, original: &Mesh, occluder: &[PieceTriangle]) -> Drawn {
     let n = view.pixels * view.pixels;
     let (mut depth, mut shade) = (vec![f64::INFINITY; n], vec![0.0f64; n]);
     for tri in original.triangles_f64() {
@@ -119,17 +180,12 @@ fn draw_view(view: &View, original: &Mesh, occluder: &Occluder) -> Drawn {
         });
     }
     let mut near = vec![f64::INFINITY; n];
-    let mut kind = vec![Shape::Boxes; n];
-    let pieces = occluder
-        .solid
-        .triangles_f64()
-        .map(|t| (t, Shape::Boxes))
-        .chain(occluder.panels.iter().flat_map(|p| p.triangles().map(|t| (t, p.shape))));
-    for (tri, shape) in pieces {
-        rasterize(view, &tri, |i, d| {
+    let mut kind = vec![Piece::Solid; n];
+    for (tri, piece) in occluder {
+        rasterize(view, tri, |i, d| {
             if d < near[i] {
                 near[i] = d;
-                kind[i] = shape;
+                kind[i] = *piece;
             }
         });
     }
@@ -156,7 +212,7 @@ fn draw_view(view: &View, original: &Mesh, occluder: &Occluder) -> Drawn {
                 FALSE_PIXEL.0.map(f64::from)
             } else {
                 drawn.covered += 1;
-                let c = colour(kind[i]);
+                let c = kind[i].colour();
                 [0, 1, 2].map(|k| 0.45 * base[k] + 0.55 * c[k])
             };
             drawn.pixels.push(Rgb(rgb.map(|v| v.clamp(0.0, 255.0) as u8)));
@@ -165,14 +221,14 @@ fn draw_view(view: &View, original: &Mesh, occluder: &Occluder) -> Drawn {
     drawn
 }
 
-/// The key to the colours, right-aligned at `right`; returns where it starts.
-fn legend(image: &mut RgbImage, right: u32, y: u32) -> u32 {
-    let entries = [
-        ("boxes", colour(Shape::Boxes)),
-        ("quads", colour(Shape::Quads)),
-        ("patches", colour(Shape::Patches)),
-        ("false", FALSE_PIXEL.0.map(f64::from)),
-    ];
+/// The key to the colours of `kinds` and false pixels, right-aligned at `right`; returns where
+/// it starts.
+fn legend(image: &mut RgbImage, right: u32, y: u32, kinds: &[Piece]) -> u32 {
+    let entries: Vec<(&str, [f64; 3])> = kinds
+        .iter()
+        .map(|k| (k.name(), k.colour()))
+        .chain([("false", FALSE_PIXEL.0.map(f64::from))])
+        .collect();
     let mut x = right;
     for (name, rgb) in entries.iter().rev() {
         x -= 8 * name.len() as u32 + 20;

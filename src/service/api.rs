@@ -50,6 +50,7 @@ pub struct AppState {
         job_events,
         occluder_glb,
         occluder_report,
+        occluder_preview,
         healthz,
         metrics_text
     ),
@@ -96,6 +97,7 @@ pub fn router(state: AppState) -> axum::Router {
         .route("/v1/jobs/{id}/events", get(job_events))
         .route("/v1/occluders/{key}", get(occluder_glb))
         .route("/v1/occluders/{key}/report", get(occluder_report))
+        .route("/v1/occluders/{key}/preview.png", get(occluder_preview))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics_text))
         .route("/openapi.json", get(openapi_json))
@@ -908,6 +910,40 @@ async fn occluder_report(State(state): State<AppState>, Path(key): Path<String>)
     match state.service.result_report(&key).await.map_err(ApiError::storage)? {
         Ok(report) => Ok(([(header::CONTENT_TYPE, "application/json")], report).into_response()),
         Err(recook) => Err(missing(&key, recook)),
+    }
+}
+
+#[utoipa::path(
+    get, path = "/v1/occluders/{key}/preview.png",
+    params(("key" = String, Path, description = "Content key (64 hex digits)")),
+    responses(
+        (status = 200, description = "A PNG sheet of four views: the original in grey, the occluder over it, false pixels in red; drawn once, immutable", content_type = "image/png"),
+        (status = 404, body = ErrorBody, description = "No result for the key, or it is a level's")
+    )
+)]
+async fn occluder_preview(State(state): State<AppState>, Path(key): Path<String>) -> Result<Response, ApiError> {
+    check_key(&key)?;
+    match state.service.preview(&key).await.map_err(ApiError::storage)? {
+        Some(png) => Ok((
+            [
+                (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
+                (
+                    header::ETAG,
+                    HeaderValue::from_str(&format!("\"{key}-preview\"")).expect("hex is ASCII"),
+                ),
+                (
+                    header::CACHE_CONTROL,
+                    HeaderValue::from_static("public, max-age=31536000, immutable"),
+                ),
+            ],
+            png,
+        )
+            .into_response()),
+        None => Err(ApiError::new(
+            StatusCode::NOT_FOUND,
+            "no_preview",
+            format!("no mesh result for key {key} to draw (levels have none)"),
+        )),
     }
 }
 

@@ -280,6 +280,36 @@ impl Service {
         }
     }
 
+    /// The preview sheet of a mesh's result: drawn on first asking from its kept input and its
+    /// GLB, then stored beside it. None where there is no result, or it is a level's.
+    pub async fn preview(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        if let Some(png) = self.store.preview(key).await? {
+            return Ok(Some(png));
+        }
+        let (Some(input), Some(glb), Some(report)) = (
+            self.store.input(key).await?,
+            self.store.result_glb(key).await?,
+            self.store.result_report(key).await?,
+        ) else {
+            return Ok(None);
+        };
+        if input.format == LEVEL_FORMAT {
+            return Ok(None);
+        }
+        let limits = self.settings.ingest_limits();
+        let drawn = tokio::task::spawn_blocking(move || draw_preview(&input, &glb, &report, &limits)).await;
+        let Ok(Some(png)) = drawn else {
+            tracing::warn!(key, "cannot draw the preview of a stored result");
+            return Ok(None);
+        };
+        self.store.put_preview(key, &png).await?;
+        let mut cache = self.cache.lock().unwrap();
+        if let Some(&(_, bytes)) = cache.entries.get(key) {
+            cache.touch(key, bytes + png.len() as u64);
+        }
+        Ok(Some(png))
+    }
+
     pub async fn result_report(&self, key: &str) -> StoreResult<Result<Vec<u8>, Option<String>>> {
         match self.store.result_report(key).await? {
             Some(report) => Ok(Ok(report)),
@@ -733,6 +763,43 @@ impl Service {
             self.cache.lock().unwrap().remove(&key);
         }
     }
+}
+
+/// The preview sheet (PNG) of a result: its input read again, the GLB's solid and panels over
+/// it, and the report's figures in the caption. None where the input or GLB cannot be read.
+fn draw_preview(
+    input: &store::Input,
+    glb: &[u8],
+    report: &[u8],
+    limits: &crate::mesh::IngestLimits,
+) -> Option<Vec<u8>> {
+    use crate::eval::preview::{self, Caption, Piece};
+    let (original, _) = input.load(limits).ok()?;
+    let mut pieces = Vec::new();
+    for (name, mesh) in crate::mesh::glb::read_parts(glb).ok()? {
+        let piece = if name == "occluder-panels" {
+            Piece::Panels
+        } else {
+            Piece::Boxes
+        };
+        pieces.extend(preview::pieces_of_mesh(&mesh, piece));
+    }
+    let report: serde_json::Value = serde_json::from_slice(report).ok()?;
+    let quality = &report["quality"];
+    let caption = Caption {
+        name: report["key"].as_str().unwrap_or_default().chars().take(16).collect(),
+        triangles_in: report["input"]["triangles"].as_u64().unwrap_or(0) as usize,
+        triangles_out: report["occluder"]["triangles"].as_u64().unwrap_or(0) as usize,
+        judged: quality["coverage"].as_f64().map(|coverage| {
+            (
+                coverage,
+                quality["false_pixels"].as_u64().unwrap_or(0),
+                quality["views"].as_u64().unwrap_or(0) as usize,
+            )
+        }),
+    };
+    let (sheet, _) = preview::sheet(&original, &pieces, &caption);
+    Some(preview::png(&sheet))
 }
 
 /// Why a running job must stop now: cancelled (its flag raised) or past `limit` seconds since

@@ -148,6 +148,11 @@ pub trait Store: Send + Sync + 'static {
     /// The report JSON, if present and intact.
     async fn result_report(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
     async fn result_meta(&self, key: &str) -> StoreResult<Option<ResultMeta>>;
+    /// Files the preview sheet (PNG) drawn for a stored result.
+    async fn put_preview(&self, key: &str, png: &[u8]) -> StoreResult<()>;
+    /// The preview sheet, if one was drawn and is intact.
+    async fn preview(&self, key: &str) -> StoreResult<Option<Vec<u8>>>;
+    /// Deletes the result, with its preview.
     async fn delete_result(&self, key: &str) -> StoreResult<()>;
     /// Every stored result: (key, meta).
     async fn results(&self) -> StoreResult<Vec<(String, ResultMeta)>>;

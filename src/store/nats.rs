@@ -378,6 +378,10 @@ fn report_blob(key: &str) -> String {
     format!("report/{key}")
 }
 
+fn preview_blob(key: &str) -> String {
+    format!("preview/{key}")
+}
+
 struct NatsDelivery {
     id: String,
     deliveries: u32,
@@ -558,10 +562,19 @@ impl Store for NatsStore {
         Self::record(&self.results, key).await
     }
 
+    async fn put_preview(&self, key: &str, png: &[u8]) -> StoreResult<()> {
+        self.put_blob(&preview_blob(key), png).await
+    }
+
+    async fn preview(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.result_blob(&preview_blob(key)).await
+    }
+
     async fn delete_result(&self, key: &str) -> StoreResult<()> {
         self.results.delete(key).await.map_err(backend)?;
         self.delete_blob(&glb_blob(key)).await?;
-        self.delete_blob(&report_blob(key)).await
+        self.delete_blob(&report_blob(key)).await?;
+        self.delete_blob(&preview_blob(key)).await
     }
 
     async fn results(&self) -> StoreResult<Vec<(String, ResultMeta)>> {

@@ -16,6 +16,7 @@ pub struct SledStore {
     glbs: sled::Tree,
     reports: sled::Tree,
     metas: sled::Tree,
+    previews: sled::Tree,
     queue: Arc<Queue>,
 }
 
@@ -124,6 +125,7 @@ impl SledStore {
             glbs: tree("glbs")?,
             reports: tree("reports")?,
             metas: tree("result_meta")?,
+            previews: tree("previews")?,
             db,
             queue: Arc::default(),
         };
@@ -316,8 +318,17 @@ impl Store for SledStore {
         self.metas.get(key).map_err(backend)?.map(|v| decode(&v)).transpose()
     }
 
+    async fn put_preview(&self, key: &str, png: &[u8]) -> StoreResult<()> {
+        self.previews.insert(key, seal(png)).map_err(backend)?;
+        Ok(())
+    }
+
+    async fn preview(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
+        self.sealed(&self.previews, key)
+    }
+
     async fn delete_result(&self, key: &str) -> StoreResult<()> {
-        for tree in [&self.glbs, &self.reports, &self.metas] {
+        for tree in [&self.glbs, &self.reports, &self.metas, &self.previews] {
             tree.remove(key).map_err(backend)?;
         }
         Ok(())

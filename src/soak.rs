@@ -57,8 +57,9 @@ pub struct SoakReport {
     /// Submissions answered with another key than the mesh's own.
     pub wrong_keys: u64,
     pub minutes: Vec<Minute>,
-    /// Peak RSS after the first minute over the peak in it.
-    pub rss_growth: f64,
+    /// How far RSS moves once warm: the highest per-minute peak over the lowest, over the
+    /// whole minutes of load after the first (1.0 is flat; 0 when there are none).
+    pub rss_spread: f64,
 }
 
 /// One minute of the run.
@@ -187,7 +188,8 @@ pub fn soak(options: &SoakOptions) -> Result<SoakReport, String> {
     let mut shared = shared.into_inner().unwrap();
     shared.report.seconds = started.elapsed().as_secs_f64();
     shared.report.minutes = minutes(&shared.gets, &shared.rss);
-    shared.report.rss_growth = rss_growth(&shared.report.minutes);
+    let loaded_minutes = (options.duration.as_secs_f64() / 60.0) as usize;
+    shared.report.rss_spread = rss_spread(&shared.report.minutes, loaded_minutes);
     Ok(shared.report)
 }
 
@@ -268,16 +270,18 @@ fn minutes(gets: &[(f64, f64)], rss: &[(f64, u64)]) -> Vec<Minute> {
         .collect()
 }
 
-fn rss_growth(minutes: &[Minute]) -> f64 {
-    let Some((first, rest)) = minutes.split_first() else {
-        return 0.0;
-    };
-    let later = rest.iter().map(|m| m.peak_rss_mib).fold(0.0, f64::max);
-    if first.peak_rss_mib > 0.0 {
-        later / first.peak_rss_mib
-    } else {
-        0.0
-    }
+/// The highest per-minute peak RSS over the lowest, in minutes 2 to `loaded` (the first warms
+/// up; those after `loaded` only wait for the last jobs).
+fn rss_spread(minutes: &[Minute], loaded: usize) -> f64 {
+    let warm: Vec<f64> = minutes
+        .iter()
+        .filter(|m| (2..=loaded).contains(&m.minute))
+        .map(|m| m.peak_rss_mib)
+        .collect();
+    let (low, high) = warm
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(l, h), &v| (l.min(v), h.max(v)));
+    if warm.is_empty() || low <= 0.0 { 0.0 } else { high / low }
 }
 
 /// One client thread: its connection, token and dice.

@@ -434,5 +434,25 @@ fn level_bakes_on_a_server_with_a_token() {
     let batches: serde_json::Value =
         serde_json::from_slice(&std::fs::read(work.join("level.batches.json")).unwrap()).unwrap();
     assert_eq!(batches.as_array().map(Vec::len), Some(1), "{batches}");
+    // `submit --level` sends the same upload: the same key, baked already.
+    let out_dir = work.join("submitted");
+    let (code, stdout, stderr) = cli(&[
+        "submit",
+        "--level",
+        manifest.to_str().unwrap(),
+        "--server",
+        &server.base,
+        "--token",
+        &token,
+        "-o",
+        out_dir.to_str().unwrap(),
+        "--set",
+        "cook.resolution=48",
+    ]);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    assert_eq!(
+        std::fs::read(out_dir.join("level.occluder.glb")).unwrap(),
+        std::fs::read(&out).unwrap()
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

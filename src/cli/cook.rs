@@ -33,7 +33,14 @@ pub fn run(args: CookArgs) -> Result<()> {
     let (mesh, stats) = mesh::load_file(&args.input, &settings.ingest_limits())?;
     let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
     let original = args.preview.is_some().then(|| mesh.clone());
-    let cooked = cook::cook(mesh, stats, ingest_ms, &settings, args.eval)?;
+    let bar = occluder_cook::service::client::stage_bar(&super::file_name(&args.input));
+    let progress = |stage: &str, done: f64| {
+        bar.set_position((done * 1000.0) as u64);
+        bar.set_message(stage.to_string());
+        Ok(())
+    };
+    let cooked = cook::cook_with_progress(mesh, stats, ingest_ms, &settings, args.eval, &progress)?;
+    bar.finish_and_clear();
     write_occluder(&args.output, &cooked)?;
     if let Some(path) = args.report {
         write(&path, &serde_json::to_vec_pretty(&cooked.report)?)?;

@@ -63,14 +63,7 @@ pub fn run(args: LevelArgs) -> Result<()> {
 /// Uploads the manifest and its meshes to `/v1/levels`, waits, and writes what a local bake
 /// writes.
 fn run_on_server(server: &super::ServerArgs, args: &LevelArgs) -> Result<()> {
-    // Only cook and level settings travel with a level; the server checks them again.
-    let query: Vec<(String, String)> = args
-        .settings
-        .overrides()?
-        .into_iter()
-        .filter(|(k, _)| (k.starts_with("cook.") && k != "cook.max_placed_triangles") || k.starts_with("level."))
-        .map(|(k, v)| (k, super::query_value(v)))
-        .collect();
+    let query = args.settings.job_query(&["cook", "level"])?;
     let (_, mut report) = server.client()?.submit_level(&args.manifest, &query, &args.output)?;
     // The server's report holds the batch list where a local one holds their count.
     let batches = report["batches"].take();

@@ -75,6 +75,18 @@ impl SettingsArgs {
     }
 
     /// The flags and `--set`s as `key=value` pairs, in order.
+    /// The overrides that travel with a job as query parameters: those of `sections` (`cook`,
+    /// `level`) but the server's own limits. The server checks them again.
+    pub fn job_query(&self, sections: &[&str]) -> Result<Vec<(String, String)>> {
+        Ok(self
+            .overrides()?
+            .into_iter()
+            .filter(|(k, _)| k != "cook.max_placed_triangles")
+            .filter(|(k, _)| sections.iter().any(|s| k.split('.').next() == Some(*s)))
+            .map(|(k, v)| (k, query_value(v)))
+            .collect())
+    }
+
     pub fn overrides(&self) -> Result<Vec<(String, toml::Value)>> {
         let mut overrides = Vec::new();
         let mut flag = |key: &str, value: Option<toml::Value>| {

@@ -74,7 +74,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
     println!(
         "{:.0} s, {} restarts (SIGKILL), {requests} requests ({} without an answer, {} refused as busy): \
          {} jobs accepted, {} done, {} failed, {} lost; {} occluders fetched, {} with wrong bytes, {} wrong keys; \
-         {} unexpected answers; RSS after the first minute peaks at {:.2}x its first-minute peak",
+         {} unexpected answers; RSS from minute 2 on: highest peak {:.2}x the lowest",
         report.seconds,
         report.restarts,
         report.unavailable.values().sum::<u64>(),
@@ -87,7 +87,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
         report.wrong_bytes,
         report.wrong_keys,
         report.unexpected.values().sum::<u64>(),
-        report.rss_growth,
+        report.rss_spread,
     );
     if let Some(path) = &args.json {
         let text = serde_json::to_string_pretty(&report).expect("reports serialize");

@@ -6,8 +6,12 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct SubmitArgs {
-    #[arg(required = true)]
+    #[arg(required_unless_present = "level")]
     files: Vec<PathBuf>,
+    /// Upload a level manifest and the meshes it names (next to it) to /v1/levels, wait for the
+    /// bake, and write OUT_DIR/<name>.occluder.glb.
+    #[arg(long, value_name = "MANIFEST")]
+    level: Option<PathBuf>,
     #[command(flatten)]
     server: super::ServerArgs,
     /// Wait for the jobs and write each occluder as OUT_DIR/<name>.occluder.glb.
@@ -21,16 +25,18 @@ pub struct SubmitArgs {
 
 pub fn run(args: SubmitArgs) -> Result<()> {
     let settings = args.settings.load()?;
-    // Only cook settings travel with a job; the server checks them again.
-    let query: Vec<(String, String)> = args
-        .settings
-        .overrides()?
-        .into_iter()
-        .filter(|(k, _)| k.starts_with("cook.") && k != "cook.max_placed_triangles")
-        .map(|(k, v)| (k, super::query_value(v)))
-        .collect();
     let out_dir = client::output_dir(args.out_dir)?;
     let client = args.server.client()?;
+    if let Some(manifest) = &args.level {
+        let out = out_dir.join(format!(
+            "{}.occluder.glb",
+            manifest.file_stem().unwrap_or_default().to_string_lossy()
+        ));
+        let query = args.settings.job_query(&["cook", "level"])?;
+        let (key, _) = client.submit_level(manifest, &query, &out)?;
+        println!("{}	{key}", manifest.display());
+    }
+    let query = args.settings.job_query(&["cook"])?;
     for file in &args.files {
         let key = client.submit(file, &settings, &query, args.wait, &out_dir)?;
         println!("{}\t{key}", file.display());

@@ -51,6 +51,7 @@ pub struct AppState {
         occluder_glb,
         occluder_report,
         occluder_preview,
+        recent_jobs,
         healthz,
         metrics_text
     ),
@@ -60,6 +61,7 @@ pub struct AppState {
         ErrorDetail,
         Job,
         JobError,
+        JobList,
         crate::store::job::JobState,
         crate::store::job::JobKind
     )),
@@ -93,6 +95,7 @@ pub fn router(state: AppState) -> axum::Router {
             "/v1/levels",
             post(submit_level).layer(DefaultBodyLimit::max(state.service.settings.service.max_body_bytes)),
         )
+        .route("/v1/jobs", get(recent_jobs))
         .route("/v1/jobs/{id}", get(job_status).delete(cancel_job))
         .route("/v1/jobs/{id}/events", get(job_events))
         .route("/v1/occluders/{key}", get(occluder_glb))
@@ -101,6 +104,7 @@ pub fn router(state: AppState) -> axum::Router {
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics_text))
         .route("/openapi.json", get(openapi_json))
+        .merge(super::dashboard::routes())
         .fallback(|| async { ApiError::new(StatusCode::NOT_FOUND, "not_found", "no such route") })
         .method_not_allowed_fallback(|| async {
             ApiError::new(
@@ -118,6 +122,7 @@ fn scopes_for(method: &axum::http::Method, path: &str) -> &'static [Scope] {
     use axum::http::Method;
     match path {
         "/healthz" => &[],
+        _ if super::dashboard::is_dashboard(path) && method == Method::GET => &[],
         "/metrics" => &[Scope::Admin],
         _ if method == Method::POST => &[Scope::Cook],
         // Cancelling: its own jobs with `cook`, any with `admin`.
@@ -728,6 +733,34 @@ async fn find_job(service: &Service, id: &str) -> Result<Job, ApiError> {
         return Err(unknown());
     }
     service.job(id).await.map_err(ApiError::storage)?.ok_or_else(unknown)
+}
+
+/// The recent jobs, newest first.
+#[derive(Serialize, ToSchema)]
+struct JobList {
+    jobs: Vec<Job>,
+}
+
+#[utoipa::path(
+    get, path = "/v1/jobs",
+    params(("limit" = Option<usize>, Query, description = "How many, newest first: 1 to 500, default 50")),
+    responses((status = 200, body = JobList), (status = 400, body = ErrorBody))
+)]
+async fn recent_jobs(
+    State(state): State<AppState>,
+    Query(params): Query<Vec<(String, String)>>,
+) -> Result<Json<JobList>, ApiError> {
+    let mut limit = 50;
+    for (name, value) in &params {
+        let bad = |message: String| ApiError::new(StatusCode::BAD_REQUEST, "bad_query", message);
+        match (name.as_str(), value.parse::<usize>()) {
+            ("limit", Ok(n @ 1..=500)) => limit = n,
+            ("limit", _) => return Err(bad(format!("limit = {value}: expected 1 to 500"))),
+            _ => return Err(bad(format!("unknown query parameter `{name}`"))),
+        }
+    }
+    let jobs = state.service.recent_jobs(limit).await.map_err(ApiError::storage)?;
+    Ok(Json(JobList { jobs }))
 }
 
 #[utoipa::path(

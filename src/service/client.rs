@@ -252,13 +252,7 @@ impl Client {
 
     /// Polls a job until it ends, with a progress bar on stderr.
     fn wait(&self, job: &str, name: &str) -> Result<(), Exit> {
-        let bar = ProgressBar::new(1000);
-        bar.set_style(
-            ProgressStyle::with_template("{prefix} [{bar:30}] {msg}")
-                .expect("the template parses")
-                .progress_chars("=> "),
-        );
-        bar.set_prefix(name.to_string());
+        let bar = stage_bar(name);
         loop {
             let status = self.get(&format!("/v1/jobs/{job}"))?.check(name)?.json();
             bar.set_position((status["progress"].as_f64().unwrap_or(0.0) * 1000.0) as u64);
@@ -303,6 +297,19 @@ fn multipart(parts: &[(String, String, Vec<u8>)]) -> (String, Vec<u8>) {
     }
     body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
     (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+/// A bar of a job's progress (0 to 1000) and stage, named `name`, on stderr; drawn only where
+/// stderr is a terminal, so that CI logs stay quiet.
+pub fn stage_bar(name: &str) -> ProgressBar {
+    let bar = ProgressBar::new(1000);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {msg}")
+            .expect("the template parses")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(name.to_string());
+    bar
 }
 
 /// The output folder, created if needed.

@@ -9,6 +9,7 @@
 pub mod api;
 pub mod auth;
 pub mod client;
+pub mod dashboard;
 pub mod tls;
 
 use crate::config::Settings;
@@ -251,6 +252,19 @@ impl Service {
             seen.clear();
         }
         seen.insert(upload, key.to_string());
+    }
+
+    /// The `limit` most recently created jobs, newest first, with the latest progress of those
+    /// running here.
+    pub async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
+        let mut jobs = self.store.recent_jobs(limit).await?;
+        let live = self.live.lock().unwrap();
+        for job in &mut jobs {
+            if let Some(latest) = live.get(&job.id) {
+                *job = latest.clone();
+            }
+        }
+        Ok(jobs)
     }
 
     /// The job's latest state.

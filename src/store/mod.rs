@@ -122,6 +122,8 @@ pub trait Store: Send + Sync + 'static {
     /// Ids of the jobs that ended (done or failed) before `before_ms`, ms since the epoch.
     async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>>;
     async fn delete_job(&self, id: &str) -> StoreResult<()>;
+    /// The `limit` most recently created jobs, newest first.
+    async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>>;
 
     /// Claims `key` for the job `id`, unless a job holds it already: then that claim.
     async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>>;
@@ -158,6 +160,13 @@ pub trait Store: Send + Sync + 'static {
     async fn results(&self) -> StoreResult<Vec<(String, ResultMeta)>>;
 
     async fn flush(&self) -> StoreResult<()>;
+}
+
+/// The `limit` jobs created last, newest first.
+fn newest(mut jobs: Vec<Job>, limit: usize) -> Vec<Job> {
+    jobs.sort_by(|a, b| b.created_ms.cmp(&a.created_ms).then_with(|| b.id.cmp(&a.id)));
+    jobs.truncate(limit);
+    jobs
 }
 
 /// `hash ‖ payload`.

@@ -9,7 +9,7 @@
 //! killing workers ends as a failed job instead of vanishing.
 
 use super::job::{Job, now_ms};
-use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, newest, seal, unseal};
 use crate::config::ServiceSettings;
 use async_nats::jetstream::{self, AckKind, consumer, kv, object_store, stream};
 use async_trait::async_trait;
@@ -433,6 +433,14 @@ impl Store for NatsStore {
             }
         }
         Ok(ended)
+    }
+
+    async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
+        let mut jobs = Vec::new();
+        for id in Self::keys(&self.jobs).await? {
+            jobs.extend(Self::record::<Job>(&self.jobs, &id).await?);
+        }
+        Ok(newest(jobs, limit))
     }
 
     async fn delete_job(&self, id: &str) -> StoreResult<()> {

@@ -2,7 +2,7 @@
 //! memory, rebuilt on open from the jobs a previous run left unfinished.
 
 use super::job::{Job, JobState, now_ms};
-use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, newest, seal, unseal};
 use async_trait::async_trait;
 use std::collections::{HashMap, VecDeque};
 use std::path::Path;
@@ -217,6 +217,15 @@ impl Store for SledStore {
             }
         }
         Ok(ended)
+    }
+
+    async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
+        let mut jobs = Vec::new();
+        for entry in self.jobs.iter() {
+            let (_, value) = entry.map_err(backend)?;
+            jobs.push(decode::<Job>(&value)?);
+        }
+        Ok(newest(jobs, limit))
     }
 
     async fn delete_job(&self, id: &str) -> StoreResult<()> {

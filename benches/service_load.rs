@@ -33,20 +33,13 @@ fn agent() -> ureq::Agent {
 
 /// An agent that trusts the CA in `ca_pem`, if given, in place of the public roots.
 fn agent_trusting(ca_pem: Option<&str>) -> ureq::Agent {
-    let mut tls = ureq::tls::TlsConfig::builder();
-    if let Some(pem) = ca_pem {
-        let certs: Vec<_> = ureq::tls::parse_pem(pem.as_bytes())
-            .filter_map(|item| match item {
-                Ok(ureq::tls::PemItem::Certificate(cert)) => Some(cert),
-                _ => None,
-            })
-            .collect();
-        tls = tls.root_certs(ureq::tls::RootCerts::new_with_certs(&certs));
-    }
+    let tls = ca_pem.map_or_else(ureq::tls::TlsConfig::default, |pem| {
+        occluder_cook::service::client::trusting(pem.as_bytes()).expect("the run's own CA parses")
+    });
     ureq::Agent::config_builder()
         .http_status_as_error(false)
         .timeout_global(Some(Duration::from_secs(300)))
-        .tls_config(tls.build())
+        .tls_config(tls)
         .build()
         .into()
 }

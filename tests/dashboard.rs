@@ -157,21 +157,19 @@ async fn a_mesh_uploaded_through_the_dashboard_shows_its_preview_and_figures() {
     })
     .await;
     let job = browser.find(Locator::Id("job-id")).await.unwrap().text().await.unwrap();
-    let status = reply(
-        agent()
-            .get(&format!("{}/v1/jobs/{job}", server.base))
-            .header("Authorization", &format!("Bearer {token}"))
-            .call(),
-    )
-    .json();
+    let with_token = |path: &str| {
+        let url = format!("{}{path}", server.base);
+        reply(
+            agent()
+                .get(&url)
+                .header("Authorization", &format!("Bearer {token}"))
+                .call(),
+        )
+        .json()
+    };
+    let status = with_token(&format!("/v1/jobs/{job}"));
     let key = status["key"].as_str().unwrap();
-    let report = reply(
-        agent()
-            .get(&format!("{}/v1/occluders/{key}/report", server.base))
-            .header("Authorization", &format!("Bearer {token}"))
-            .call(),
-    )
-    .json();
+    let report = with_token(&format!("/v1/occluders/{key}/report"));
     let out = report["occluder"]["triangles"].as_u64().unwrap();
     assert!(shown.contains(&format!("triangles out\n{out}")), "{shown} vs {out}");
     let rows = browser.find_all(Locator::Css("#jobs tbody tr")).await.unwrap();

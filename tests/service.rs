@@ -7,6 +7,7 @@ use common::http::*;
 use common::{cli, cuboid, torus};
 use glam::Vec3;
 use occluder_cook::mesh::IngestLimits;
+use occluder_cook::service::client::multipart;
 use serde_json::Value;
 use std::time::{Duration, Instant};
 
@@ -365,25 +366,6 @@ fn submit_and_fetch_from_the_cli_with_exit_codes_ci_can_trust() {
 
 /// One part of a multipart/form-data body: field name, file name, bytes.
 type FormPart<'a> = (&'a str, &'a str, &'a [u8]);
-
-/// A multipart/form-data body and its Content-Type.
-fn multipart(parts: &[FormPart]) -> (String, Vec<u8>) {
-    let boundary = "occluder-cook-test-boundary";
-    let mut body = Vec::new();
-    for (name, file, bytes) in parts {
-        body.extend_from_slice(
-            format!(
-                "--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"; filename=\"{file}\"\r\n\
-                 Content-Type: application/octet-stream\r\n\r\n"
-            )
-            .as_bytes(),
-        );
-        body.extend_from_slice(bytes);
-        body.extend_from_slice(b"\r\n");
-    }
-    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
-    (format!("multipart/form-data; boundary={boundary}"), body)
-}
 
 fn level_manifest(placements: &[(&str, f64)]) -> Vec<u8> {
     let instances: Vec<String> = placements

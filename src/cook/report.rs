@@ -212,12 +212,12 @@ impl Cooked {
         let panels = panel_mesh(&self.occluder.panels);
         let parts = [
             glb::Part {
-                name: "occluder-solid",
+                name: crate::occluder::SOLID_PART,
                 mesh: &self.occluder.solid,
                 double_sided: false,
             },
             glb::Part {
-                name: "occluder-panels",
+                name: crate::occluder::PANELS_PART,
                 mesh: &panels,
                 double_sided: true,
             },

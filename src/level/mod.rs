@@ -508,12 +508,12 @@ fn place_and_batch(
             name: info.name.clone(),
             parts: vec![
                 glb::Part {
-                    name: "occluder-solid",
+                    name: crate::occluder::SOLID_PART,
                     mesh: solid,
                     double_sided: false,
                 },
                 glb::Part {
-                    name: "occluder-panels",
+                    name: crate::occluder::PANELS_PART,
                     mesh: panels,
                     double_sided: true,
                 },
@@ -531,7 +531,7 @@ fn occluder_from_glb(key: &str, glb: &[u8], report: Option<&[u8]>) -> Result<Occ
     let parts = glb::read_parts(glb).map_err(|e| LevelError::Cache(format!("result {key}: {e}")))?;
     let (mut solid, mut panels) = (Mesh::default(), Mesh::default());
     for (name, mesh) in parts {
-        if name == "occluder-panels" {
+        if name == crate::occluder::PANELS_PART {
             panels.append(&mesh);
         } else {
             solid.append(&mesh);

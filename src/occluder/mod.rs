@@ -68,6 +68,11 @@ impl Occluder {
     }
 }
 
+/// The names of an occluder GLB's two primitives: the watertight solid, and the double-sided
+/// panels.
+pub const SOLID_PART: &str = "occluder-solid";
+pub const PANELS_PART: &str = "occluder-panels";
+
 /// The panels as one triangle mesh, two triangles each.
 pub fn panel_mesh(panels: &[Panel]) -> Mesh {
     Mesh {

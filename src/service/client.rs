@@ -78,30 +78,18 @@ impl Client {
     /// A client of `server` (http:// or https://). `ca_cert`: a PEM file of the certificates an
     /// https server's must chain to, in place of the public roots (a self-signed server's).
     pub fn new(server: &str, token: Option<String>, ca_cert: Option<&Path>) -> Result<Client, Exit> {
-        let mut tls = ureq::tls::TlsConfig::builder();
-        if let Some(path) = ca_cert {
-            let pem = std::fs::read(path)
-                .map_err(|e| Exit::Local(format!("cannot read --ca-cert {}: {e}", path.display())))?;
-            let certs = ureq::tls::parse_pem(&pem)
-                .filter_map(|item| match item {
-                    Ok(ureq::tls::PemItem::Certificate(cert)) => Some(Ok(cert)),
-                    Ok(_) => None,
-                    Err(e) => Some(Err(e)),
-                })
-                .collect::<Result<Vec<_>, _>>()
-                .map_err(|e| Exit::Local(format!("--ca-cert {}: {e}", path.display())))?;
-            if certs.is_empty() {
-                return Err(Exit::Local(format!(
-                    "--ca-cert {}: no PEM certificate in it",
-                    path.display()
-                )));
+        let tls = match ca_cert {
+            Some(path) => {
+                let pem = std::fs::read(path)
+                    .map_err(|e| Exit::Local(format!("cannot read --ca-cert {}: {e}", path.display())))?;
+                trusting(&pem).map_err(|e| Exit::Local(format!("--ca-cert {}: {e}", path.display())))?
             }
-            tls = tls.root_certs(ureq::tls::RootCerts::new_with_certs(&certs));
-        }
+            None => ureq::tls::TlsConfig::default(),
+        };
         let agent = ureq::Agent::config_builder()
             .http_status_as_error(false)
             .timeout_global(Some(Duration::from_secs(600)))
-            .tls_config(tls.build())
+            .tls_config(tls)
             .build()
             .into();
         Ok(Client {
@@ -214,19 +202,22 @@ impl Client {
         let mut meshes: Vec<&str> = parsed.instances.iter().map(|i| i.mesh.as_str()).collect();
         meshes.sort_unstable();
         meshes.dedup();
-        let mut parts = vec![("manifest".to_string(), "level.json".to_string(), text.clone())];
+        let mut uploads = Vec::new();
         for mesh in meshes {
             let file = dir.join(mesh);
             if file.is_file() {
                 let bytes =
                     std::fs::read(&file).map_err(|e| Exit::Local(format!("cannot read {}: {e}", file.display())))?;
-                parts.push(("mesh".into(), mesh.to_string(), bytes));
+                uploads.push((mesh, bytes));
             } else if !crate::level::is_key(&mesh.to_ascii_lowercase()) {
                 return Err(Exit::Local(format!(
                     "{name}: mesh `{mesh}` is neither a file next to the manifest nor a key"
                 )));
             }
         }
+        let parts: Vec<(&str, &str, &[u8])> = std::iter::once(("manifest", "level.json", &text[..]))
+            .chain(uploads.iter().map(|(mesh, bytes)| ("mesh", *mesh, &bytes[..])))
+            .collect();
         let (content_type, body) = multipart(&parts);
         let mut url = format!("{}/v1/levels?", self.server);
         for (k, v) in query {
@@ -279,8 +270,25 @@ impl Client {
     }
 }
 
+/// TLS that trusts the certificates in `pem` in place of the public roots.
+pub fn trusting(pem: &[u8]) -> Result<ureq::tls::TlsConfig, String> {
+    let certs = ureq::tls::parse_pem(pem)
+        .filter_map(|item| match item {
+            Ok(ureq::tls::PemItem::Certificate(cert)) => Some(Ok(cert)),
+            Ok(_) => None,
+            Err(e) => Some(Err(e.to_string())),
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    if certs.is_empty() {
+        return Err("no PEM certificate in it".into());
+    }
+    Ok(ureq::tls::TlsConfig::builder()
+        .root_certs(ureq::tls::RootCerts::new_with_certs(&certs))
+        .build())
+}
+
 /// A multipart/form-data body of (field, file name, bytes) parts, and its content type.
-fn multipart(parts: &[(String, String, Vec<u8>)]) -> (String, Vec<u8>) {
+pub fn multipart(parts: &[(&str, &str, &[u8])]) -> (String, Vec<u8>) {
     let boundary = format!("occluder-cook-{:016x}", fastrand::u64(..));
     let mut body = Vec::new();
     for (field, file, bytes) in parts {

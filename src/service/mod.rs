@@ -257,7 +257,9 @@ impl Service {
     /// The `limit` most recently created jobs, newest first, with the latest progress of those
     /// running here.
     pub async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
-        let mut jobs = self.store.recent_jobs(limit).await?;
+        let mut jobs = self.store.jobs().await?;
+        jobs.sort_by(|a, b| b.created_ms.cmp(&a.created_ms).then_with(|| b.id.cmp(&a.id)));
+        jobs.truncate(limit);
         let live = self.live.lock().unwrap();
         for job in &mut jobs {
             if let Some(latest) = live.get(&job.id) {
@@ -500,10 +502,11 @@ impl Service {
             .map(|(_, meta)| meta.job)
             .collect();
         let retention_ms = (self.settings.service.job_retention_s * 1e3) as u64;
+        let before_ms = now_ms().saturating_sub(retention_ms);
         let mut collected = 0;
-        for id in self.store.ended_jobs(now_ms().saturating_sub(retention_ms)).await? {
-            if !makers.contains(&id) {
-                self.store.delete_job(&id).await?;
+        for job in self.store.jobs().await? {
+            if job.state.is_finished() && job.updated_ms < before_ms && !makers.contains(&job.id) {
+                self.store.delete_job(&job.id).await?;
                 collected += 1;
             }
         }
@@ -791,7 +794,7 @@ fn draw_preview(
     let (original, _) = input.load(limits).ok()?;
     let mut pieces = Vec::new();
     for (name, mesh) in crate::mesh::glb::read_parts(glb).ok()? {
-        let piece = if name == "occluder-panels" {
+        let piece = if name == crate::occluder::PANELS_PART {
             Piece::Panels
         } else {
             Piece::Boxes

@@ -119,11 +119,9 @@ pub trait Store: Send + Sync + 'static {
         Ok(())
     }
     async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
-    /// Ids of the jobs that ended (done or failed) before `before_ms`, ms since the epoch.
-    async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>>;
+    /// Every job record: those queued or running, and those ended but not yet collected.
+    async fn jobs(&self) -> StoreResult<Vec<Job>>;
     async fn delete_job(&self, id: &str) -> StoreResult<()>;
-    /// The `limit` most recently created jobs, newest first.
-    async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>>;
 
     /// Claims `key` for the job `id`, unless a job holds it already: then that claim.
     async fn claim(&self, key: &str, id: &str) -> StoreResult<Option<Claim>>;
@@ -160,13 +158,6 @@ pub trait Store: Send + Sync + 'static {
     async fn results(&self) -> StoreResult<Vec<(String, ResultMeta)>>;
 
     async fn flush(&self) -> StoreResult<()>;
-}
-
-/// The `limit` jobs created last, newest first.
-fn newest(mut jobs: Vec<Job>, limit: usize) -> Vec<Job> {
-    jobs.sort_by(|a, b| b.created_ms.cmp(&a.created_ms).then_with(|| b.id.cmp(&a.id)));
-    jobs.truncate(limit);
-    jobs
 }
 
 /// `hash ‖ payload`.

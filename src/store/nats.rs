@@ -9,7 +9,7 @@
 //! killing workers ends as a failed job instead of vanishing.
 
 use super::job::{Job, now_ms};
-use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, newest, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
 use crate::config::ServiceSettings;
 use async_nats::jetstream::{self, AckKind, consumer, kv, object_store, stream};
 use async_trait::async_trait;
@@ -423,24 +423,12 @@ impl Store for NatsStore {
         Self::record(&self.jobs, id).await
     }
 
-    async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>> {
-        let ids = Self::keys(&self.jobs).await?;
-        let mut ended = Vec::new();
-        for id in ids {
-            let job: Option<Job> = Self::record(&self.jobs, &id).await?;
-            if let Some(job) = job.filter(|j| j.state.is_finished() && j.updated_ms < before_ms) {
-                ended.push(job.id);
-            }
-        }
-        Ok(ended)
-    }
-
-    async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
+    async fn jobs(&self) -> StoreResult<Vec<Job>> {
         let mut jobs = Vec::new();
         for id in Self::keys(&self.jobs).await? {
             jobs.extend(Self::record::<Job>(&self.jobs, &id).await?);
         }
-        Ok(newest(jobs, limit))
+        Ok(jobs)
     }
 
     async fn delete_job(&self, id: &str) -> StoreResult<()> {

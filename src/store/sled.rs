@@ -2,7 +2,7 @@
 //! memory, rebuilt on open from the jobs a previous run left unfinished.
 
 use super::job::{Job, JobState, now_ms};
-use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, newest, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
 use async_trait::async_trait;
 use std::collections::{HashMap, VecDeque};
 use std::path::Path;
@@ -136,14 +136,11 @@ impl SledStore {
     /// Queues again, oldest first, the jobs that a previous run (a crash, a kill -9) left queued
     /// or running.
     fn queue_unfinished(&self) -> StoreResult<()> {
-        let mut unfinished = Vec::new();
-        for entry in self.jobs.iter() {
-            let (_, value) = entry.map_err(backend)?;
-            let job: Job = decode(&value)?;
-            if !job.state.is_finished() {
-                unfinished.push(job);
-            }
-        }
+        let mut unfinished: Vec<Job> = self
+            .all_jobs()?
+            .into_iter()
+            .filter(|j| !j.state.is_finished())
+            .collect();
         unfinished.sort_by_key(|j| j.created_ms);
         for mut job in unfinished {
             tracing::info!(job = job.id, key = job.key, "queueing again a job left unfinished");
@@ -160,6 +157,14 @@ impl SledStore {
         }
         self.db.flush().map_err(backend)?;
         Ok(())
+    }
+
+    /// Every job record.
+    fn all_jobs(&self) -> StoreResult<Vec<Job>> {
+        self.jobs
+            .iter()
+            .map(|entry| decode(&entry.map_err(backend)?.1))
+            .collect()
     }
 
     /// Makes every write so far durable. sled 0.34's `flush_async` can deadlock when called
@@ -207,25 +212,8 @@ impl Store for SledStore {
         self.jobs.get(id).map_err(backend)?.map(|v| decode(&v)).transpose()
     }
 
-    async fn ended_jobs(&self, before_ms: u64) -> StoreResult<Vec<String>> {
-        let mut ended = Vec::new();
-        for entry in self.jobs.iter() {
-            let (_, value) = entry.map_err(backend)?;
-            let job: Job = decode(&value)?;
-            if job.state.is_finished() && job.updated_ms < before_ms {
-                ended.push(job.id);
-            }
-        }
-        Ok(ended)
-    }
-
-    async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
-        let mut jobs = Vec::new();
-        for entry in self.jobs.iter() {
-            let (_, value) = entry.map_err(backend)?;
-            jobs.push(decode::<Job>(&value)?);
-        }
-        Ok(newest(jobs, limit))
+    async fn jobs(&self) -> StoreResult<Vec<Job>> {
+        self.all_jobs()
     }
 
     async fn delete_job(&self, id: &str) -> StoreResult<()> {

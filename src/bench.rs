@@ -5,6 +5,7 @@ use crate::cook::{Cooked, Report, Timings, cook};
 use crate::eval::{Quality, evaluate_where_it_can};
 use crate::gpu::{self, Gpu, GpuError};
 use crate::mesh::{Format, Mesh, load_file, topology::orient_closed_components};
+use indicatif::ProgressBar;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -41,9 +42,10 @@ pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Cooks and evaluates every file, printing a row as each finishes; with `judge_views` above
-/// 0, judges each occluder again from that many views, on the cook's device when it has one.
-pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<BenchRow> {
+/// Cooks and evaluates every file, printing a row as each finishes (above `bar`, which counts
+/// the meshes and names the one cooking); with `judge_views` above 0, judges each occluder again
+/// from that many views, on the cook's device when it has one.
+pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize, bar: &ProgressBar) -> Vec<BenchRow> {
     let judge_gpu = gpu::for_choice(settings.cook.device).ok().and_then(|p| p.gpu);
     println!(
         "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}",
@@ -68,13 +70,15 @@ pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<Be
         "eval_ms",
         format!("nb@{judge_views}"),
     );
-    files
+    bar.set_length(files.len() as u64);
+    let rows = files
         .iter()
         .map(|path| {
             let name = path
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
+            bar.set_message(name.clone());
             let start = Instant::now();
             let cooked = load_file(path, &settings.ingest_limits())
                 .map_err(|e| e.to_string())
@@ -87,10 +91,11 @@ pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<Be
                         .map_err(|e| e.to_string())?;
                     Ok((cooked, judged))
                 });
+            bar.inc(1);
             match cooked {
                 Ok((cooked, judged)) => {
                     let report = cooked.report;
-                    print_row(&name, &report, judged.as_ref());
+                    bar.suspend(|| print_row(&name, &report, judged.as_ref()));
                     BenchRow {
                         mesh: name,
                         report: Some(report),
@@ -99,7 +104,7 @@ pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<Be
                     }
                 }
                 Err(e) => {
-                    println!("{name:<34} rejected: {e}");
+                    bar.suspend(|| println!("{name:<34} rejected: {e}"));
                     BenchRow {
                         mesh: name,
                         report: None,
@@ -109,7 +114,9 @@ pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize) -> Vec<Be
                 }
             }
         })
-        .collect()
+        .collect();
+    bar.finish_and_clear();
+    rows
 }
 
 /// The quality of `cooked`'s occluder for `original` from `views` views, on `gpu` where it can.

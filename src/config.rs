@@ -26,6 +26,8 @@ pub struct Settings {
 pub struct LevelSettings {
     pub batch_max_triangles: usize,
     pub batch_max_extent: f64,
+    /// Cameras of the cull test a bake runs on its own occluder (0: none).
+    pub cull_cameras: usize,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -33,6 +35,7 @@ pub struct LevelSettings {
 pub struct ServiceSettings {
     pub listen: String,
     pub workers: usize,
+    pub evaluate: bool,
     pub data_dir: String,
     pub max_body_bytes: usize,
     pub max_queue: usize,
@@ -288,6 +291,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
         1e9,
     )?;
     check("level.batch_max_extent", s.level.batch_max_extent, 1e-6, 1e12)?;
+    check("level.cull_cameras", s.level.cull_cameras as f64, 0.0, 256.0)?;
     let v = &s.service;
     check("service.workers", v.workers as f64, 1.0, 256.0)?;
     check("service.max_body_bytes", v.max_body_bytes as f64, 1024.0, 4e9)?;

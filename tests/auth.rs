@@ -92,6 +92,8 @@ fn tokens_guard_every_endpoint_but_healthz_and_reload_without_a_restart() {
         ("POST", "/v1/levels", "cook"),
         ("GET", "/v1/jobs/j", "read"),
         ("GET", "/v1/jobs/j/events", "read"),
+        ("GET", "/v1/jobs", "read"),
+        ("GET", "/v1/activity", "read"),
         ("GET", &format!("/v1/occluders/{}", "0".repeat(64)), "read"),
         ("GET", "/v1/occluders/k/report", "read"),
         ("GET", "/openapi.json", "read"),

@@ -1,7 +1,7 @@
 //! The dashboard in a real browser: Debian's chromium, headless, driven through chromedriver
 //! (WebDriver, with fantoccini) against the real server on loopback with tokens on. It enters
 //! the token, uploads a mesh through the form, waits until the job page shows `done`, and checks
-//! the preview image and the figures against the report. Screenshots at 1280×800 and at a
+//! the preview image and the figures (triangles, coverage, false pixels) against the report. Screenshots at 1280×800 and at a
 //! phone's 390×844 go to target/dashboard-*.png.
 //!
 //! Without chromium and chromedriver on PATH it says so and passes, except under CI (`CI=true`),
@@ -38,6 +38,19 @@ where
         assert!(started.elapsed() < limit, "{what} after {limit:?}");
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
+}
+
+/// The natural width of the job page's preview image, once it has loaded.
+async fn preview_width(browser: &fantoccini::Client, what: &str) -> u64 {
+    until(what, Duration::from_secs(60), || async {
+        let width = browser
+            .execute("return document.getElementById('preview').naturalWidth", vec![])
+            .await
+            .ok()?
+            .as_u64()?;
+        (width > 0).then_some(width)
+    })
+    .await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -140,15 +153,7 @@ async fn a_mesh_uploaded_through_the_dashboard_shows_its_preview_and_figures() {
     })
     .await;
     assert_eq!(state, "done");
-    let width = until("the preview never loads", Duration::from_secs(60), || async {
-        let width = browser
-            .execute("return document.getElementById('preview').naturalWidth", vec![])
-            .await
-            .ok()?
-            .as_u64()?;
-        (width > 0).then_some(width)
-    })
-    .await;
+    let width = preview_width(&browser, "the preview never loads").await;
     assert!(width >= 640, "{width}");
     // The figures shown are the report's.
     let shown = until("no figures", Duration::from_secs(30), || async {
@@ -172,6 +177,12 @@ async fn a_mesh_uploaded_through_the_dashboard_shows_its_preview_and_figures() {
     let report = with_token(&format!("/v1/occluders/{key}/report"));
     let out = report["occluder"]["triangles"].as_u64().unwrap();
     assert!(shown.contains(&format!("triangles out\n{out}")), "{shown} vs {out}");
+    // The service judges every mesh: the coverage shown is the report's, to the digit shown.
+    let coverage = report["quality"]["coverage"].as_f64().expect("the report has coverage");
+    assert!(coverage > 0.9, "a crate's occluder covers it: {coverage}");
+    let coverage = format!("coverage\n{:.1}%", coverage * 100.0);
+    assert!(shown.contains(&coverage), "{shown} vs {coverage}");
+    assert!(shown.contains("false pixels\n0"), "{shown}");
     let rows = browser.find_all(Locator::Css("#jobs tbody tr")).await.unwrap();
     assert_eq!(rows.len(), 1, "the jobs list shows the one job");
 
@@ -181,6 +192,56 @@ async fn a_mesh_uploaded_through_the_dashboard_shows_its_preview_and_figures() {
     browser.set_window_size(390, 844).await.unwrap();
     let phone = browser.screenshot().await.unwrap();
     std::fs::write(target.join("dashboard-phone.png"), &phone).unwrap();
+
+    // A level posted over the API: its page shows the batches and the bake's cull figures.
+    let manifest = br#"{"name":"yard","instances":[
+        {"mesh":"crate.obj","transform":[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]},
+        {"mesh":"crate.obj","transform":[1,0,0,0, 0,1,0,0, 0,0,1,0, 4,0,0,1]},
+        {"mesh":"crate.obj","transform":[1,0,0,0, 0,1,0,0, 0,0,1,0, 8,0,0,1]}]}"#;
+    let crate_obj = std::fs::read(&mesh).unwrap();
+    let (content_type, body) = occluder_cook::service::client::multipart(&[
+        ("manifest", "yard.json", manifest),
+        ("mesh", "crate.obj", &crate_obj),
+    ]);
+    let queued = reply(
+        agent()
+            .post(&format!("{}/v1/levels", server.base))
+            .header("Authorization", &format!("Bearer {token}"))
+            .header("Content-Type", &content_type)
+            .send(&body[..]),
+    );
+    assert_eq!(queued.status, 202, "{}", String::from_utf8_lossy(&queued.body));
+    let level_job = queued.json()["job"].as_str().unwrap().to_string();
+    browser.set_window_size(1280, 800).await.unwrap();
+    browser.goto(&format!("{}/#{level_job}", server.base)).await.unwrap();
+    browser.refresh().await.unwrap();
+    let shown = until(
+        "the level's page never shows its figures",
+        Duration::from_secs(120),
+        || async {
+            let text = browser.find(Locator::Id("job-figures")).await.ok()?.text().await.ok()?;
+            text.contains("wrongly culled").then_some(text)
+        },
+    )
+    .await;
+    let level_key = with_token(&format!("/v1/jobs/{level_job}"))["key"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let level = with_token(&format!("/v1/occluders/{level_key}/report"));
+    assert!(shown.contains("wrongly culled\n0"), "{shown}");
+    let cameras = level["cull"]["cameras"].as_u64().unwrap();
+    let culled = format!(
+        "{:.1}% in view ({cameras} cameras)",
+        level["cull"]["culled_share"].as_f64().unwrap() * 100.0
+    );
+    assert!(shown.contains(&culled), "{shown} vs {culled}");
+    for batch in level["batches"].as_array().unwrap() {
+        let line = format!("{}\n{} triangles", batch["name"].as_str().unwrap(), batch["triangles"]);
+        assert!(shown.contains(&line), "{shown} vs {line}");
+    }
+    assert!(preview_width(&browser, "the level's preview never loads").await >= 640);
+    std::fs::write(target.join("dashboard-level.png"), browser.screenshot().await.unwrap()).unwrap();
     println!("screenshots: {}", target.join("dashboard-*.png").display());
     browser.close().await.unwrap();
     let _ = driver.kill();

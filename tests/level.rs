@@ -85,6 +85,15 @@ fn instances_share_one_cook_and_a_rebake_is_all_cached() {
     assert_eq!(covered, 40);
     let glb = std::fs::read(dir.join("level.glb")).unwrap();
     assert_eq!(&glb[..4], b"glTF");
+    // The bake's cull test: cameras among the boxes see some behind others, culled rightly.
+    let cull = &report["cull"];
+    assert_eq!(
+        (cull["cameras"].as_u64(), cull["wrongly_culled"].as_u64()),
+        (Some(8), Some(0)),
+        "{cull}"
+    );
+    assert!(cull["culled_share"].as_f64().unwrap() > 0.0, "{cull}");
+    assert!(stdout.contains("cull test: 8 cameras"), "{stdout}");
     let (code, _, stderr) = bake(&dir, &path);
     assert_eq!(code, 0, "{stderr}");
     let again: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
@@ -231,6 +240,31 @@ fn cull_eval_catches_an_occluder_that_hides_what_is_visible() {
     } else {
         eprintln!("no GPU adapter: the GPU ground truth is not compared");
     }
+
+    // The preview sheet shows the wrongly culled in red, and the baked occluder's sheet none.
+    let limits = occluder_cook::mesh::IngestLimits::default();
+    let level = occluder_cook::level::load(&path, &limits).unwrap();
+    let meshes = occluder_cook::level::cull::load_meshes(&level, &Default::default()).unwrap();
+    let red_pixels = |occluder: &std::path::Path| {
+        let (occluder, _) = occluder_cook::mesh::load_file(occluder, &limits).unwrap();
+        let caption = occluder_cook::level::preview::LevelCaption {
+            name: "cull".into(),
+            instances: level.instances.len(),
+            batches: 0,
+            triangles: occluder.triangles.len(),
+            cull: None,
+        };
+        let sheet = occluder_cook::level::preview::sheet(&level, &meshes, &occluder, &[], &caption).unwrap();
+        sheet.save(dir.join("sheet.png")).unwrap();
+        // Over the views only: the caption's legend has a red square of its own.
+        let views = 2 * occluder_cook::eval::preview::VIEW_PIXELS as u32;
+        sheet
+            .enumerate_pixels()
+            .filter(|(_, y, p)| *y < views && p[0] > 150 && p[1] < 100 && p[2] < 100)
+            .count()
+    };
+    assert_eq!(red_pixels(&baked), 0);
+    assert!(red_pixels(&wall) > 100, "the wall's wrongly culled boxes show in red");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -48,8 +48,12 @@ fn submit_dedupe_cache_and_headers() {
     assert_eq!(not_modified.status, 304);
     let head = reply(agent().head(&format!("{base}/v1/occluders/{key}")).call());
     assert_eq!((head.status, head.body.len()), (200, 0));
-    let report = get(&format!("{base}/v1/occluders/{key}/report"), &[]);
-    assert_eq!(report.json()["key"], key);
+    let report = get(&format!("{base}/v1/occluders/{key}/report"), &[]).json();
+    assert_eq!(report["key"], key);
+    // service.evaluate: the server judged it, and a cube's occluder hides nothing it should not.
+    assert_eq!(report["quality"]["views"], 64, "{report}");
+    assert_eq!(report["quality"]["false_pixels"], 0, "{report}");
+    assert!(report["quality"]["coverage"].as_f64().unwrap() > 0.9, "{report}");
 
     // Cached: 200 and the job that made it. The same geometry as GLB has the same key.
     let cached = post(&format!("{base}/v1/cook"), Some("model/obj"), &cube);
@@ -91,6 +95,9 @@ fn submit_dedupe_cache_and_headers() {
     let other = post(&format!("{base}/v1/cook?resolution=32"), Some("model/obj"), &cube);
     assert_eq!(other.status, 202);
     assert_ne!(other.json()["key"], key);
+    for accepted in [&fbx, &other] {
+        wait_for(base, accepted.json()["job"].as_str().unwrap(), Duration::from_secs(60));
+    }
 
     let unknown = "0".repeat(64);
     get(&format!("{base}/v1/occluders/{unknown}"), &[]).assert_error(404, "unknown_key");
@@ -107,8 +114,34 @@ fn submit_dedupe_cache_and_headers() {
         "occluder_jobs{state=\"running\"}",
         "occluder_queue_depth",
         "occluder_cache_bytes",
+        "occluder_workers 2",
     ] {
         assert!(metrics.contains(name), "{name} missing from /metrics:\n{metrics}");
+    }
+    // The dashboard's figures are the gauges', as JSON (once the last job's end has set them).
+    let activity = get(&format!("{base}/v1/activity"), &[]).json();
+    assert_eq!(
+        (activity["workers"].as_u64(), activity["running"].as_u64()),
+        (Some(2), Some(0))
+    );
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let metrics = String::from_utf8(get(&format!("{base}/metrics"), &[]).body).unwrap();
+        let gauge = |name: &str| {
+            metrics
+                .lines()
+                .find_map(|l| l.strip_prefix(name)?.trim().parse::<f64>().ok())
+        };
+        let gauges = (gauge("occluder_cache_bytes "), gauge("occluder_queue_depth "));
+        let shown = (activity["cache_bytes"].as_f64(), activity["queue_depth"].as_f64());
+        if gauges == shown {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "/v1/activity {shown:?} vs /metrics {gauges:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
     }
     let openapi = get(&format!("{base}/openapi.json"), &[]).json();
     for path in [
@@ -412,18 +445,26 @@ fn a_level_is_baked_over_the_api_from_uploads_and_keys() {
     // The same level again is the same key, already baked.
     let again = post(&levels, Some(&content_type), &body);
     assert_eq!((again.status, again.json()["key"].as_str()), (200, Some(key.as_str())));
-    get(&format!("{base}/v1/occluders/{key}/preview.png"), &[]).assert_error(404, "no_preview");
-    // A mesh's preview sheet: drawn once from its kept input and GLB, then served as stored.
-    let sheet = get(&format!("{base}/v1/occluders/{known}/preview.png"), &[]);
-    assert_eq!(sheet.status, 200, "{}", String::from_utf8_lossy(&sheet.body));
-    assert_eq!(sheet.header("content-type"), Some("image/png"));
-    assert!(sheet.header("cache-control").is_some_and(|c| c.contains("immutable")));
-    let image = image::load_from_memory(&sheet.body).unwrap();
-    assert!(image.width() >= 640 && image.height() > image.width());
-    assert_eq!(
-        get(&format!("{base}/v1/occluders/{known}/preview.png"), &[]).body,
-        sheet.body
-    );
+    // The bake's own cull test: no instance culled while visible.
+    assert_eq!(report["cull"]["cameras"], 8, "{report}");
+    assert_eq!(report["cull"]["wrongly_culled"], 0, "{report}");
+    // Preview sheets, a mesh's and the level's: drawn once from the kept inputs and the GLB,
+    // then served as stored, immutable, with 304 for the ETag.
+    for url in [
+        format!("{base}/v1/occluders/{known}/preview.png"),
+        format!("{base}/v1/levels/{key}/preview.png"),
+    ] {
+        let sheet = get(&url, &[]);
+        assert_eq!(sheet.status, 200, "{url}: {}", String::from_utf8_lossy(&sheet.body));
+        assert_eq!(sheet.header("content-type"), Some("image/png"));
+        assert!(sheet.header("cache-control").is_some_and(|c| c.contains("immutable")));
+        let image = image::load_from_memory(&sheet.body).unwrap();
+        assert!(image.width() >= 640 && image.height() > image.width());
+        assert_eq!(get(&url, &[]).body, sheet.body);
+        let etag = sheet.header("etag").unwrap();
+        let again = get(&url, &[("If-None-Match", etag)]);
+        assert_eq!((again.status, again.body.len()), (304, 0), "{url}");
+    }
     get(&format!("{base}/v1/occluders/{}/preview.png", "0".repeat(64)), &[]).assert_error(404, "no_preview");
 
     // Bad levels: JSON errors naming the problem, and the server keeps serving.

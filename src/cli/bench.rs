@@ -32,7 +32,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         );
     }
     let files = bench::corpus_files(&corpus)?;
-    let rows = bench::run(&files, &settings, args.judge_views);
+    let bar = occluder_cook::service::client::count_bar("meshes");
+    let rows = bench::run(&files, &settings, args.judge_views, &bar);
     if let Some(r) = rows.iter().find_map(|row| row.report.as_ref()) {
         println!(
             "device: {} (dev gpu: every GPU stage on it; mix: inside fell back to the CPU)",

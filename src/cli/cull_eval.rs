@@ -33,7 +33,8 @@ pub fn run(args: CullEvalArgs) -> Result<()> {
         mesh::load_file(&args.occluders, &limits).with_context(|| format!("occluders {}", args.occluders.display()))?;
     let placement = gpu::for_choice(args.device)?;
     let start = Instant::now();
-    let report = level::cull::cull_eval(&level, &occluder, cameras, pixels, placement.gpu.as_deref())
+    let meshes = level::cull::load_meshes(&level, &Default::default()).map_err(anyhow::Error::msg)?;
+    let report = level::cull::cull_eval(&level, &meshes, &occluder, cameras, pixels, placement.gpu.as_deref())
         .map_err(anyhow::Error::msg)?;
     println!(
         "ground truth on {}: {:.0} ms",

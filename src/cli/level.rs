@@ -17,6 +17,10 @@ pub struct LevelArgs {
     /// Write the batch list (bounds, triangles, instances) here [default: OUTPUT.batches.json].
     #[arg(long)]
     batches: Option<PathBuf>,
+    /// Write a PNG sheet: a top view of the instances by batch, and three cull-test cameras with
+    /// the culled instances seen through the walls.
+    #[arg(long, value_name = "PNG", conflicts_with = "server")]
+    preview: Option<PathBuf>,
     /// service.data_dir: the cache.
     #[arg(long, conflicts_with = "server")]
     data_dir: Option<PathBuf>,
@@ -39,20 +43,36 @@ pub fn run(args: LevelArgs) -> Result<()> {
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let store = SledStore::open(&dir, settings.service.sled_cache_bytes)
         .with_context(|| "the cache is in use (a server on the same data_dir?): pass --data-dir".to_string())?;
-    let bar = indicatif::ProgressBar::new(0);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("unique meshes [{bar:30}] {pos}/{len}")
-            .expect("the template parses")
-            .progress_chars("=> "),
-    );
+    let bar = occluder_cook::service::client::count_bar("unique meshes");
     let progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
     let never = |_: &str, _: f64| Ok(());
-    let baked = tokio::runtime::Runtime::new()?.block_on(level::bake(&level, &settings, &store, &progress, &never))?;
+    let runtime = tokio::runtime::Runtime::new()?;
+    let baked = runtime.block_on(level::bake(&level, &settings, &store, &progress, &never))?;
     bar.finish_and_clear();
     write(&args.output, &baked.glb)?;
+    if let Some(path) = &args.preview {
+        let meshes = runtime
+            .block_on(level::placed_meshes(&level, &store, &settings.ingest_limits()))
+            .map_err(anyhow::Error::msg)?;
+        let r = &baked.report;
+        let caption = level::preview::LevelCaption {
+            name: match level.name.is_empty() {
+                true => super::file_name(&args.manifest),
+                false => level.name.clone(),
+            },
+            instances: r.instances,
+            batches: r.batches,
+            triangles: r.triangles_after,
+            cull: r.cull.as_ref().map(|c| (c.culled_share, c.wrongly_culled, c.cameras)),
+        };
+        let groups: Vec<Vec<usize>> = baked.batches.iter().map(|b| b.instances.clone()).collect();
+        let occluder = level::occluder_mesh(&baked.glb).map_err(anyhow::Error::msg)?;
+        let sheet = level::preview::sheet(&level, &meshes, &occluder, &groups, &caption).map_err(anyhow::Error::msg)?;
+        write(path, &occluder_cook::eval::preview::png(&sheet))?;
+    }
     write_outputs(
         &args,
         &serde_json::to_value(&baked.report)?,
@@ -102,4 +122,16 @@ fn summarize(manifest: &Path, r: &serde_json::Value) {
         r["draw_calls_before"],
         r["draw_calls_after"],
     );
+    let cull = &r["cull"];
+    if let Some(share) = cull["culled_share"].as_f64() {
+        println!(
+            "cull test: {} cameras culled {:.1}% of the instances in view, {} wrongly",
+            cull["cameras"],
+            share * 100.0,
+            cull["wrongly_culled"]
+        );
+    }
+    for note in r["notes"].as_array().into_iter().flatten() {
+        println!("note: {}", note.as_str().unwrap_or_default());
+    }
 }

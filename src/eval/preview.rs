@@ -23,9 +23,9 @@ pub struct Caption {
 /// The pixels of one view's side.
 pub const VIEW_PIXELS: usize = 320;
 /// Height of the caption strip.
-const CAPTION_PIXELS: u32 = 64;
-const BACKGROUND: Rgb<u8> = Rgb([246, 246, 242]);
-const FALSE_PIXEL: Rgb<u8> = Rgb([220, 20, 30]);
+pub(crate) const CAPTION_PIXELS: u32 = 64;
+pub(crate) const BACKGROUND: Rgb<u8> = Rgb([246, 246, 242]);
+pub(crate) const FALSE_PIXEL: Rgb<u8> = Rgb([220, 20, 30]);
 const TEXT: Rgb<u8> = Rgb([30, 30, 36]);
 
 /// The kinds of piece an occluder is drawn in.
@@ -103,11 +103,7 @@ pub fn sheet(original: &Mesh, occluder: &[PieceTriangle], caption: &Caption) -> 
         false_pixels += drawn.false_pixels;
         covered += drawn.covered;
         seen += drawn.seen;
-        let (x0, y0) = ((i as u32 % 2) * side, (i as u32 / 2) * side);
-        for (p, rgb) in drawn.pixels.iter().enumerate() {
-            image.put_pixel(x0 + (p % VIEW_PIXELS) as u32, y0 + (p / VIEW_PIXELS) as u32, *rgb);
-        }
-        text(&mut image, x0 + 6, y0 + 6, 1, name);
+        place_view(&mut image, i, &drawn.pixels, name);
     }
     let figures = match caption.judged {
         Some((coverage, false_pixels, views)) => {
@@ -125,7 +121,12 @@ pub fn sheet(original: &Mesh, occluder: &[PieceTriangle], caption: &Caption) -> 
     let mut kinds: Vec<Piece> = occluder.iter().map(|t| t.1).collect();
     kinds.sort_by_key(|k| *k as u8);
     kinds.dedup();
-    let legend_left = legend(&mut image, 2 * side - 8, y, &kinds);
+    let entries: Vec<(&str, [f64; 3])> = kinds
+        .iter()
+        .map(|k| (k.name(), k.colour()))
+        .chain([("false", FALSE_PIXEL.0.map(f64::from))])
+        .collect();
+    let legend_left = legend(&mut image, 2 * side - 8, y, &entries);
     // The name up to the legend; the rest of a long name is left out.
     let fits = (legend_left.saturating_sub(16) / 16) as usize;
     text(
@@ -221,14 +222,19 @@ fn draw_view(view: &View, original: &Mesh, occluder: &[PieceTriangle]) -> Drawn 
     drawn
 }
 
-/// The key to the colours of `kinds` and false pixels, right-aligned at `right`; returns where
-/// it starts.
-fn legend(image: &mut RgbImage, right: u32, y: u32, kinds: &[Piece]) -> u32 {
-    let entries: Vec<(&str, [f64; 3])> = kinds
-        .iter()
-        .map(|k| (k.name(), k.colour()))
-        .chain([("false", FALSE_PIXEL.0.map(f64::from))])
-        .collect();
+/// Puts view `index`'s pixels (VIEW_PIXELS square, rows from the top) in its cell of a 2×2
+/// sheet, named in its corner.
+pub(crate) fn place_view(image: &mut RgbImage, index: usize, pixels: &[Rgb<u8>], name: &str) {
+    let side = VIEW_PIXELS as u32;
+    let (x0, y0) = ((index as u32 % 2) * side, (index as u32 / 2) * side);
+    for (p, rgb) in pixels.iter().enumerate() {
+        image.put_pixel(x0 + (p % VIEW_PIXELS) as u32, y0 + (p / VIEW_PIXELS) as u32, *rgb);
+    }
+    text(image, x0 + 6, y0 + 6, 1, name);
+}
+
+/// The key to `entries`' colours, right-aligned at `right`; returns where it starts.
+pub(crate) fn legend(image: &mut RgbImage, right: u32, y: u32, entries: &[(&str, [f64; 3])]) -> u32 {
     let mut x = right;
     for (name, rgb) in entries.iter().rev() {
         x -= 8 * name.len() as u32 + 20;
@@ -244,7 +250,7 @@ fn legend(image: &mut RgbImage, right: u32, y: u32, kinds: &[Piece]) -> u32 {
 
 /// Writes `line` at (x, y) in the 8×8 bitmap font, each dot `scale` pixels wide; what does not
 /// fit is cut off.
-fn text(image: &mut RgbImage, x: u32, y: u32, scale: u32, line: &str) {
+pub(crate) fn text(image: &mut RgbImage, x: u32, y: u32, scale: u32, line: &str) {
     use font8x8::UnicodeFonts;
     for (i, ch) in line.chars().enumerate() {
         let glyph = font8x8::BASIC_FONTS.get(ch).or_else(|| font8x8::BASIC_FONTS.get('?'));

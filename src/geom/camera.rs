@@ -102,6 +102,14 @@ impl View {
         }
     }
 
+    /// The unit vector from `p` towards the camera: `dir` for orthographic views.
+    pub fn towards_camera(&self, p: DVec3) -> DVec3 {
+        match self.lens {
+            Lens::Orthographic { .. } => self.dir,
+            Lens::Perspective { eye } => (eye - p).normalize_or(self.dir),
+        }
+    }
+
     /// The point at pixel `index`'s centre and `depth`: [`View::project`] undone.
     pub fn unproject(&self, index: usize, depth: f64) -> DVec3 {
         let half = self.pixels as f64 / 2.0;

@@ -46,35 +46,62 @@ pub struct CullReport {
     pub occluder_triangles: usize,
     /// What rendered the ground truth: "cpu", or the GPU adapter's name.
     pub truth_device: String,
+    /// Each camera and what it culled, for pictures.
+    #[serde(skip)]
+    pub shots: Vec<Shot>,
 }
 
-/// Runs `cameras` cameras over `level` with `occluder` at `pixels` wide, rendering the ground
-/// truth on `gpu` when given.
+/// One camera of a cull test: where it stands, where it looks, and the instances the occluder
+/// culled there, those among them visible in truth apart.
+#[derive(Debug)]
+pub struct Shot {
+    pub eye: DVec3,
+    pub forward: DVec3,
+    pub culled: Vec<usize>,
+    pub wrongly_culled: Vec<usize>,
+}
+
+impl Shot {
+    /// The camera as the test renders its ground truth, at `pixels` wide; `near` as the test's.
+    pub fn view(&self, pixels: usize, near: f64) -> View {
+        View::perspective(self.eye, -self.forward, pixels, near)
+    }
+}
+
+/// The near plane of a level's cameras: far closer than its depth tolerance, so that a wall next
+/// to the eye is not clipped away.
+pub fn near_plane(boxes: &[(DVec3, DVec3)]) -> f64 {
+    let (lo, hi) = point_bounds(boxes.iter().flat_map(|&(l, h)| [l, h]));
+    depth_tolerance(lo, hi) * 1e-3
+}
+
+fn depth_tolerance(lo: DVec3, hi: DVec3) -> f64 {
+    1e-4 * (hi - lo).length()
+}
+
+/// Runs `cameras` cameras over `level`, whose unique meshes are `meshes`, with `occluder` at
+/// `pixels` wide, rendering the ground truth on `gpu` when given.
 pub fn cull_eval(
     level: &Level,
+    meshes: &HashMap<&MeshRef, Mesh>,
     occluder: &Mesh,
     cameras: usize,
     pixels: usize,
     gpu: Option<&Gpu>,
 ) -> Result<CullReport, String> {
-    let meshes = load_meshes(level)?;
-    let boxes = instance_bounds(level, &meshes);
+    let boxes = instance_bounds(level, meshes);
     let (lo, hi) = point_bounds(boxes.iter().flat_map(|&(l, h)| [l, h]));
-    let tolerance = 1e-4 * (hi - lo).length();
-    let (poses, cameras_in_solids) = free_camera_poses(level, &meshes, &boxes, (lo, hi), cameras)?;
-    // Views look along -dir. Their near plane sits far closer than the depth tolerance, so
-    // that a wall next to the eye is not clipped away.
-    let near = tolerance * 1e-3;
+    let tolerance = depth_tolerance(lo, hi);
+    let (poses, cameras_in_solids) = free_camera_poses(level, meshes, &boxes, (lo, hi), cameras)?;
+    let near = near_plane(&boxes);
     let truth_view = |(eye, forward): (DVec3, DVec3)| View::perspective(eye, -forward, TRUTH_PIXELS, near);
     // The GPU renders one camera after another; the CPU renders them in parallel below.
     let truth_views: Vec<View> = poses.iter().map(|&pose| truth_view(pose)).collect();
     let gpu_truth = match gpu {
-        Some(gpu) => {
-            Some(gpu_ground_truth(gpu, level, &meshes, &boxes, &truth_views, near).map_err(|e| e.to_string())?)
-        }
+        Some(gpu) => Some(gpu_ground_truth(gpu, level, meshes, &boxes, &truth_views, near).map_err(|e| e.to_string())?),
         None => None,
     };
-    let results: Vec<(usize, usize, usize)> = poses
+    let shots: Vec<(usize, Shot)> = poses
         .par_iter()
         .enumerate()
         .map(|(c, &(eye, forward))| {
@@ -82,48 +109,58 @@ pub fn cull_eval(
             let occluded = occluder_depth(&coarse, occluder);
             let visible = match &gpu_truth {
                 Some(images) => images[c].clone(),
-                None => ground_truth(&truth_views[c], level, &meshes, &boxes),
+                None => ground_truth(&truth_views[c], level, meshes, &boxes),
             };
-            let (mut in_view, mut culled, mut wrong) = (0, 0, 0);
+            let mut in_view = 0;
+            let mut shot = Shot {
+                eye,
+                forward,
+                culled: Vec::new(),
+                wrongly_culled: Vec::new(),
+            };
             for (i, b) in boxes.iter().enumerate() {
                 let Some(test) = box_on_screen(&coarse, b) else {
                     continue;
                 };
                 in_view += 1;
                 if fully_behind(&occluded, pixels, &test, tolerance) {
-                    culled += 1;
-                    wrong += usize::from(visible[i]);
+                    shot.culled.push(i);
+                    if visible[i] {
+                        shot.wrongly_culled.push(i);
+                    }
                 }
             }
-            (in_view, culled, wrong)
+            (in_view, shot)
         })
         .collect();
-    let shares: Vec<f64> = results
+    let shares: Vec<f64> = shots
         .iter()
-        .filter(|r| r.0 > 0)
-        .map(|r| r.1 as f64 / r.0 as f64)
+        .filter(|(in_view, _)| *in_view > 0)
+        .map(|(in_view, shot)| shot.culled.len() as f64 / *in_view as f64)
         .collect();
-    let worst = results
+    let worst = shots
         .iter()
-        .enumerate()
-        .filter(|(_, r)| r.2 > 0)
-        .max_by_key(|(_, r)| r.2)
-        .map(|(c, r)| (poses[c].0.to_array(), poses[c].1.to_array(), r.2));
+        .map(|(_, shot)| shot)
+        .filter(|shot| !shot.wrongly_culled.is_empty())
+        .max_by_key(|shot| shot.wrongly_culled.len())
+        .map(|shot| (shot.eye.to_array(), shot.forward.to_array(), shot.wrongly_culled.len()));
     Ok(CullReport {
         cameras,
         cameras_in_solids,
         instances: level.instances.len(),
         culled_share: shares.iter().sum::<f64>() / shares.len().max(1) as f64,
-        wrongly_culled: results.iter().map(|r| r.2).sum(),
+        wrongly_culled: shots.iter().map(|(_, shot)| shot.wrongly_culled.len()).sum(),
         worst_camera: worst,
         occluder_pixels: pixels,
         occluder_triangles: occluder.triangles.len(),
         truth_device: gpu.map_or("cpu".into(), Gpu::name),
+        shots: shots.into_iter().map(|(_, shot)| shot).collect(),
     })
 }
 
-/// Every unique mesh the level places, read once.
-fn load_meshes(level: &Level) -> Result<HashMap<&MeshRef, Mesh>, String> {
+/// Every unique mesh the level places, read once: files from disk, parts from the level, and
+/// keys from `keyed` (meshes fetched by whoever holds the store).
+pub fn load_meshes<'a>(level: &'a Level, keyed: &HashMap<String, Mesh>) -> Result<HashMap<&'a MeshRef, Mesh>, String> {
     let mut meshes: HashMap<&MeshRef, Mesh> = HashMap::new();
     for (m, _) in &level.instances {
         if meshes.contains_key(m) {
@@ -135,7 +172,10 @@ fn load_meshes(level: &Level) -> Result<HashMap<&MeshRef, Mesh>, String> {
                 read.map_err(|e| format!("{}: {e}", path.display()))?.0
             }
             MeshRef::Part(p) => level.parts[*p].1.clone(),
-            MeshRef::Key(k) => return Err(format!("mesh {k} is only a key: cull-eval needs the real meshes")),
+            MeshRef::Key(k) => keyed
+                .get(k)
+                .cloned()
+                .ok_or_else(|| format!("mesh {k} is only a key: cull-eval needs the real meshes"))?,
         };
         meshes.insert(m, mesh);
     }
@@ -143,7 +183,7 @@ fn load_meshes(level: &Level) -> Result<HashMap<&MeshRef, Mesh>, String> {
 }
 
 /// Each instance's bounds, placed.
-fn instance_bounds(level: &Level, meshes: &HashMap<&MeshRef, Mesh>) -> Vec<(DVec3, DVec3)> {
+pub fn instance_bounds(level: &Level, meshes: &HashMap<&MeshRef, Mesh>) -> Vec<(DVec3, DVec3)> {
     level
         .instances
         .iter()
@@ -307,21 +347,36 @@ fn fully_behind(depth: &[f32], n: usize, b: &ScreenBox, tolerance: f64) -> bool 
     (b.y[0]..=b.y[1]).all(|y| (b.x[0]..=b.x[1]).all(|x| f64::from(depth[y * n + x]) < b.near - tolerance))
 }
 
-/// Which instances show at least one pixel, rendering the real meshes front to back and
-/// skipping those whose box is already wholly behind what is drawn (then none of their pixels
-/// could survive).
-fn ground_truth(view: &View, level: &Level, meshes: &HashMap<&MeshRef, Mesh>, boxes: &[(DVec3, DVec3)]) -> Vec<bool> {
+/// What a view of the placed meshes shows per pixel, rows from the bottom: the nearest depth,
+/// the instance there (u32::MAX for none) and its light (0 to 1, facing the camera brightest).
+pub struct Frame {
+    pub depth: Vec<f32>,
+    pub instance: Vec<u32>,
+    pub light: Vec<f32>,
+}
+
+/// Renders the real meshes of `instances` front to back, skipping those whose box is already
+/// wholly behind what is drawn (then none of their pixels could survive).
+pub fn render_instances(
+    view: &View,
+    level: &Level,
+    meshes: &HashMap<&MeshRef, Mesh>,
+    boxes: &[(DVec3, DVec3)],
+    instances: &[usize],
+) -> Frame {
     let n = view.pixels;
-    let mut order: Vec<(usize, ScreenBox)> = boxes
+    let mut order: Vec<(usize, ScreenBox)> = instances
         .iter()
-        .enumerate()
-        .filter_map(|(i, b)| box_on_screen(view, b).map(|s| (i, s)))
+        .filter_map(|&i| box_on_screen(view, &boxes[i]).map(|s| (i, s)))
         .collect();
     order.sort_by(|a, b| a.1.near.total_cmp(&b.1.near));
-    let mut depth = vec![f32::INFINITY; n * n];
-    let mut id = vec![u32::MAX; n * n];
+    let mut frame = Frame {
+        depth: vec![f32::INFINITY; n * n],
+        instance: vec![u32::MAX; n * n],
+        light: vec![0.0; n * n],
+    };
     for (i, screen) in &order {
-        if fully_behind(&depth, n, screen, 0.0) {
+        if fully_behind(&frame.depth, n, screen, 0.0) {
             continue;
         }
         let (m, matrix): &(MeshRef, DMat4) = &level.instances[*i];
@@ -329,16 +384,34 @@ fn ground_truth(view: &View, level: &Level, meshes: &HashMap<&MeshRef, Mesh>, bo
         let placed: Vec<DVec3> = placed_positions(mesh, matrix).collect();
         for t in &mesh.triangles {
             let tri = t.map(|v| placed[v as usize]);
+            let mut lit = None;
             rasterize(view, &tri, |p, d| {
-                if (d as f32) < depth[p] {
-                    depth[p] = d as f32;
-                    id[p] = *i as u32;
+                if (d as f32) < frame.depth[p] {
+                    frame.depth[p] = d as f32;
+                    frame.instance[p] = *i as u32;
+                    // Lit by the direction to the camera at the triangle, found once it shows.
+                    frame.light[p] = *lit.get_or_insert_with(|| light(view, &tri));
                 }
             });
         }
     }
+    frame
+}
+
+/// How brightly a triangle faces the camera.
+fn light(view: &View, tri: &[DVec3; 3]) -> f32 {
+    let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+    let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
+    let towards = view.towards_camera(centre);
+    (0.35 + 0.6 * normal.dot(towards).abs()) as f32
+}
+
+/// Which instances show at least one pixel.
+fn ground_truth(view: &View, level: &Level, meshes: &HashMap<&MeshRef, Mesh>, boxes: &[(DVec3, DVec3)]) -> Vec<bool> {
+    let all: Vec<usize> = (0..boxes.len()).collect();
+    let frame = render_instances(view, level, meshes, boxes, &all);
     let mut visible = vec![false; boxes.len()];
-    for &i in id.iter().filter(|&&i| i != u32::MAX) {
+    for &i in frame.instance.iter().filter(|&&i| i != u32::MAX) {
         visible[i as usize] = true;
     }
     visible
@@ -363,7 +436,7 @@ mod tests {
             instances: vec![(MeshRef::Part(0), DMat4::IDENTITY), (MeshRef::Part(0), corner)],
             parts: vec![("block".into(), block, Default::default())],
         };
-        let meshes = load_meshes(&level).expect("parts load");
+        let meshes = load_meshes(&level, &HashMap::new()).expect("parts load");
         let boxes = instance_bounds(&level, &meshes);
         let bounds = point_bounds(boxes.iter().flat_map(|&(l, h)| [l, h]));
         let (poses, refused) = free_camera_poses(&level, &meshes, &boxes, bounds, 50).expect("free space exists");

@@ -7,6 +7,7 @@
 pub mod batch;
 pub mod cull;
 pub mod hidden;
+pub mod preview;
 
 use crate::config::Settings;
 use crate::cook::cook_with_progress;
@@ -250,7 +251,12 @@ pub struct LevelReport {
     /// One per primitive of each placed mesh.
     pub draw_calls_before: usize,
     pub draw_calls_after: usize,
+    /// The bake's cull test of its own occluder (`level.cull_cameras`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cull: Option<cull::CullReport>,
     pub timings_ms: crate::cook::Timings,
+    /// What was left out, and why.
+    pub notes: Vec<String>,
 }
 
 pub struct Baked {
@@ -312,6 +318,16 @@ pub async fn bake(
     timings
         .0
         .push(("place+batch".into(), placing.elapsed().as_secs_f64() * 1e3));
+    let mut notes = Vec::new();
+    let cull = match settings.level.cull_cameras {
+        0 => None,
+        cameras => {
+            let testing = Instant::now();
+            let test = cull_test(level, store, &glb, settings, cameras).await;
+            timings.0.push(("cull".into(), testing.elapsed().as_secs_f64() * 1e3));
+            test.map_err(|e| notes.push(format!("no cull test: {e}"))).ok()
+        }
+    };
     let report = LevelReport {
         name: level.name.clone(),
         instances: level.instances.len(),
@@ -327,7 +343,9 @@ pub async fn bake(
             .map(|(m, _)| occluders[m].source_primitives)
             .sum(),
         draw_calls_after: batches.len(),
+        cull,
         timings_ms: timings,
+        notes,
     };
     Ok(Baked {
         glb,
@@ -335,6 +353,51 @@ pub async fn bake(
         batches,
         report,
     })
+}
+
+/// The level's cull test of `glb`, its occluder, from `cameras` cameras.
+async fn cull_test(
+    level: &Level,
+    store: &dyn Store,
+    glb: &[u8],
+    settings: &Settings,
+    cameras: usize,
+) -> Result<cull::CullReport, String> {
+    let meshes = placed_meshes(level, store, &settings.ingest_limits()).await?;
+    let occluder = occluder_mesh(glb)?;
+    let gpu = crate::gpu::for_choice(settings.cook.device).ok().and_then(|p| p.gpu);
+    cull::cull_eval(level, &meshes, &occluder, cameras, preview::CULL_PIXELS, gpu.as_deref())
+}
+
+/// Every unique mesh the level places: files read again, parts from the level, and keys from
+/// the uploads `store` keeps.
+pub async fn placed_meshes<'a>(
+    level: &'a Level,
+    store: &dyn Store,
+    limits: &crate::mesh::IngestLimits,
+) -> Result<HashMap<&'a MeshRef, Mesh>, String> {
+    let mut keyed = HashMap::new();
+    for (m, _) in &level.instances {
+        let MeshRef::Key(key) = m else { continue };
+        if keyed.contains_key(key) {
+            continue;
+        }
+        let input = store.input(key).await.map_err(|e| e.to_string())?;
+        let input = input.ok_or_else(|| format!("the upload of mesh {key} is no longer kept"))?;
+        let (mesh, _) = input.load(limits).map_err(|e| format!("mesh {key}: {e}"))?;
+        keyed.insert(key.clone(), mesh);
+    }
+    cull::load_meshes(level, &keyed)
+}
+
+/// A level's occluder GLB as one mesh, every batch's solid and panels together.
+pub fn occluder_mesh(glb: &[u8]) -> Result<Mesh, String> {
+    let parts = glb::read_parts(glb).map_err(|e| format!("the level's occluder: {e}"))?;
+    let mut occluder = Mesh::default();
+    for (_, mesh) in parts {
+        occluder.append(&mesh);
+    }
+    Ok(occluder)
 }
 
 /// What a mesh is cooked from when its result is not cached: its input as stored, the mesh and

@@ -51,7 +51,9 @@ pub struct AppState {
         occluder_glb,
         occluder_report,
         occluder_preview,
+        level_preview,
         recent_jobs,
+        activity,
         healthz,
         metrics_text
     ),
@@ -62,6 +64,7 @@ pub struct AppState {
         Job,
         JobError,
         JobList,
+        super::Activity,
         crate::store::job::JobState,
         crate::store::job::JobKind
     )),
@@ -96,11 +99,13 @@ pub fn router(state: AppState) -> axum::Router {
             post(submit_level).layer(DefaultBodyLimit::max(state.service.settings.service.max_body_bytes)),
         )
         .route("/v1/jobs", get(recent_jobs))
+        .route("/v1/activity", get(activity))
         .route("/v1/jobs/{id}", get(job_status).delete(cancel_job))
         .route("/v1/jobs/{id}/events", get(job_events))
         .route("/v1/occluders/{key}", get(occluder_glb))
         .route("/v1/occluders/{key}/report", get(occluder_report))
         .route("/v1/occluders/{key}/preview.png", get(occluder_preview))
+        .route("/v1/levels/{key}/preview.png", get(level_preview))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics_text))
         .route("/openapi.json", get(openapi_json))
@@ -763,6 +768,12 @@ async fn recent_jobs(
     Ok(Json(JobList { jobs }))
 }
 
+/// The queue and this node's workers: the figures of /metrics's gauges, for a read token.
+#[utoipa::path(get, path = "/v1/activity", responses((status = 200, body = super::Activity)))]
+async fn activity(State(state): State<AppState>) -> Result<Json<super::Activity>, ApiError> {
+    Ok(Json(state.service.activity().await.map_err(ApiError::storage)?))
+}
+
 #[utoipa::path(
     get, path = "/v1/jobs/{id}",
     params(("id" = String, Path, description = "Job id")),
@@ -899,22 +910,8 @@ async fn occluder_glb(
 ) -> Result<Response, ApiError> {
     check_key(&key)?;
     let etag = format!("\"{key}\"");
-    let matches = headers
-        .get(header::IF_NONE_MATCH)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| {
-            v.split(',')
-                .map(str::trim)
-                .any(|t| t == "*" || t.trim_start_matches("W/") == etag)
-        });
-    let cache_headers = [
-        (header::ETAG, HeaderValue::from_str(&etag).expect("hex is ASCII")),
-        (
-            header::CACHE_CONTROL,
-            HeaderValue::from_static("public, max-age=31536000, immutable"),
-        ),
-    ];
-    if matches
+    let cache_headers = immutable(&etag);
+    if matches_etag(&headers, &etag)
         && state
             .service
             .result_meta(&key)
@@ -946,38 +943,80 @@ async fn occluder_report(State(state): State<AppState>, Path(key): Path<String>)
     }
 }
 
+/// Whether an If-None-Match header names `etag` (or `*`).
+fn matches_etag(headers: &HeaderMap, etag: &str) -> bool {
+    headers
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| {
+            v.split(',')
+                .map(str::trim)
+                .any(|t| t == "*" || t.trim_start_matches("W/") == etag)
+        })
+}
+
+/// The headers of what a key names, which never changes.
+fn immutable(etag: &str) -> [(header::HeaderName, HeaderValue); 2] {
+    [
+        (header::ETAG, HeaderValue::from_str(etag).expect("hex is ASCII")),
+        (
+            header::CACHE_CONTROL,
+            HeaderValue::from_static("public, max-age=31536000, immutable"),
+        ),
+    ]
+}
+
 #[utoipa::path(
     get, path = "/v1/occluders/{key}/preview.png",
     params(("key" = String, Path, description = "Content key (64 hex digits)")),
     responses(
         (status = 200, description = "A PNG sheet of four views: the original in grey, the occluder over it, false pixels in red; drawn once, immutable", content_type = "image/png"),
-        (status = 404, body = ErrorBody, description = "No result for the key, or it is a level's")
+        (status = 304, description = "If-None-Match matched"),
+        (status = 404, body = ErrorBody, description = "No result for the key, or its input is no longer kept")
     )
 )]
-async fn occluder_preview(State(state): State<AppState>, Path(key): Path<String>) -> Result<Response, ApiError> {
+async fn occluder_preview(
+    State(state): State<AppState>,
+    Path(key): Path<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
     check_key(&key)?;
+    let etag = format!("\"{key}-preview\"");
+    if matches_etag(&headers, &etag)
+        && state
+            .service
+            .store
+            .preview(&key)
+            .await
+            .map_err(ApiError::storage)?
+            .is_some()
+    {
+        return Ok((StatusCode::NOT_MODIFIED, immutable(&etag)).into_response());
+    }
     match state.service.preview(&key).await.map_err(ApiError::storage)? {
-        Some(png) => Ok((
-            [
-                (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
-                (
-                    header::ETAG,
-                    HeaderValue::from_str(&format!("\"{key}-preview\"")).expect("hex is ASCII"),
-                ),
-                (
-                    header::CACHE_CONTROL,
-                    HeaderValue::from_static("public, max-age=31536000, immutable"),
-                ),
-            ],
-            png,
-        )
-            .into_response()),
+        Some(png) => {
+            let content_type = (header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
+            Ok((StatusCode::OK, immutable(&etag), [content_type], png).into_response())
+        }
         None => Err(ApiError::new(
             StatusCode::NOT_FOUND,
             "no_preview",
-            format!("no mesh result for key {key} to draw (levels have none)"),
+            format!("no result for key {key} to draw, or its inputs are no longer kept"),
         )),
     }
+}
+
+#[utoipa::path(
+    get, path = "/v1/levels/{key}/preview.png",
+    params(("key" = String, Path, description = "The level's content key (64 hex digits)")),
+    responses(
+        (status = 200, description = "A PNG sheet: a top view of the instances by batch, and three cull-test cameras with the culled instances seen through the walls; drawn once, immutable", content_type = "image/png"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 404, body = ErrorBody, description = "No result for the key, or its meshes' uploads are no longer kept")
+    )
+)]
+async fn level_preview(state: State<AppState>, key: Path<String>, headers: HeaderMap) -> Result<Response, ApiError> {
+    occluder_preview(state, key, headers).await
 }
 
 #[utoipa::path(get, path = "/healthz", responses((status = 200, description = "Serving"), (status = 503, body = ErrorBody, description = "The store does not answer")))]

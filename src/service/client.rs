@@ -310,14 +310,22 @@ pub fn multipart(parts: &[(&str, &str, &[u8])]) -> (String, Vec<u8>) {
 /// A bar of a job's progress (0 to 1000) and stage, named `name`, on stderr; drawn only where
 /// stderr is a terminal, so that CI logs stay quiet.
 pub fn stage_bar(name: &str) -> ProgressBar {
-    let bar = ProgressBar::new(1000);
-    bar.set_style(
-        ProgressStyle::with_template("{prefix} [{bar:30}] {msg}")
-            .expect("the template parses")
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(name.to_string());
-    bar
+    ProgressBar::new(1000)
+        .with_style(bar_style("{prefix} [{bar:30}] {msg}"))
+        .with_prefix(name.to_string())
+}
+
+/// A bar that counts `what` (its length set as the count is known), like [`stage_bar`].
+pub fn count_bar(what: &str) -> ProgressBar {
+    ProgressBar::new(0)
+        .with_style(bar_style("{prefix} [{bar:30}] {pos}/{len} {msg}"))
+        .with_prefix(what.to_string())
+}
+
+fn bar_style(template: &str) -> ProgressStyle {
+    ProgressStyle::with_template(template)
+        .expect("the template parses")
+        .progress_chars("=> ")
 }
 
 /// The output folder, created if needed.

@@ -34,6 +34,22 @@ pub struct Service {
     /// Keys of uploads seen before, by the BLAKE3 of their bytes, format and settings: a repeat
     /// upload skips parsing.
     seen: Mutex<HashMap<blake3::Hash, String>>,
+    /// Worker tasks this process runs (0 on an API-only node).
+    workers: std::sync::atomic::AtomicUsize,
+}
+
+/// What the service is doing: the figures of /metrics's gauges, as JSON for the dashboard.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct Activity {
+    /// Jobs waiting to run, over the whole store (every node of a cluster).
+    pub queue_depth: usize,
+    /// Jobs this node's workers are running.
+    pub running: usize,
+    /// Worker tasks on this node.
+    pub workers: usize,
+    /// Bytes of results and kept inputs, and the most kept before eviction.
+    pub cache_bytes: u64,
+    pub max_cache_bytes: u64,
 }
 
 /// What a job made: its GLB and report, and the bytes of the input kept beside them.
@@ -128,6 +144,7 @@ impl Service {
             stops: Mutex::new(HashMap::new()),
             cache: Mutex::new(Lru::default()),
             seen: Mutex::new(HashMap::new()),
+            workers: Default::default(),
         });
         // Oldest first, so that the least recently made is the first to go.
         let mut results = service.store.results().await?;
@@ -296,8 +313,9 @@ impl Service {
         }
     }
 
-    /// The preview sheet of a mesh's result: drawn on first asking from its kept input and its
-    /// GLB, then stored beside it. None where there is no result, or it is a level's.
+    /// The preview sheet of a result, a mesh's or a level's: drawn on first asking from its kept
+    /// input (a level's meshes from theirs) and its GLB, then stored beside it. None where there
+    /// is no result.
     pub async fn preview(&self, key: &str) -> StoreResult<Option<Vec<u8>>> {
         if let Some(png) = self.store.preview(key).await? {
             return Ok(Some(png));
@@ -309,12 +327,16 @@ impl Service {
         ) else {
             return Ok(None);
         };
-        if input.format == LEVEL_FORMAT {
-            return Ok(None);
-        }
         let limits = self.settings.ingest_limits();
-        let drawn = tokio::task::spawn_blocking(move || draw_preview(&input, &glb, &report, &limits)).await;
-        let Ok(Some(png)) = drawn else {
+        let drawn = if input.format == LEVEL_FORMAT {
+            self.draw_level_preview(&input, glb, report).await
+        } else {
+            tokio::task::spawn_blocking(move || draw_preview(&input, &glb, &report, &limits))
+                .await
+                .ok()
+                .flatten()
+        };
+        let Some(png) = drawn else {
             tracing::warn!(key, "cannot draw the preview of a stored result");
             return Ok(None);
         };
@@ -361,13 +383,25 @@ impl Service {
         self.store.queue_depth().await
     }
 
+    /// What this node's gauges show.
+    pub async fn activity(&self) -> StoreResult<Activity> {
+        Ok(Activity {
+            queue_depth: self.store.queue_depth().await?,
+            running: self.live.lock().unwrap().len(),
+            workers: self.workers.load(std::sync::atomic::Ordering::Relaxed),
+            cache_bytes: self.cache.lock().unwrap().bytes,
+            max_cache_bytes: self.settings.service.max_cache_bytes,
+        })
+    }
+
     async fn update_gauges(&self) {
-        let running = self.live.lock().unwrap().len();
-        metrics::gauge!("occluder_jobs", "state" => "running").set(running as f64);
-        if let Ok(depth) = self.store.queue_depth().await {
-            metrics::gauge!("occluder_queue_depth").set(depth as f64);
-        }
-        metrics::gauge!("occluder_cache_bytes").set(self.cache.lock().unwrap().bytes as f64);
+        let Ok(activity) = self.activity().await else {
+            return;
+        };
+        metrics::gauge!("occluder_jobs", "state" => "running").set(activity.running as f64);
+        metrics::gauge!("occluder_workers").set(activity.workers as f64);
+        metrics::gauge!("occluder_queue_depth").set(activity.queue_depth as f64);
+        metrics::gauge!("occluder_cache_bytes").set(activity.cache_bytes as f64);
     }
 
     /// Runs one delivered job to its end: done with a stored result, or failed with an error.
@@ -627,7 +661,7 @@ impl Service {
                 service.set_progress(&running, &progress, stage, done);
                 Ok(())
             };
-            let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, false, &progress)
+            let cooked = cook_with_progress(mesh, stats, ingest_ms, &settings, settings.service.evaluate, &progress)
                 .map_err(|e| cook_failure(e, limit))?;
             for (stage, ms) in &cooked.report.timings_ms.0 {
                 metrics::histogram!("occluder_cook_stage_seconds", "stage" => stage.clone()).record(ms / 1e3);
@@ -782,6 +816,49 @@ impl Service {
     }
 }
 
+impl Service {
+    /// A level's preview sheet (PNG): its manifest read again, its meshes from their kept
+    /// uploads, and the report's batches and cull figures. None where a mesh is gone.
+    async fn draw_level_preview(&self, input: &store::Input, glb: Vec<u8>, report: Vec<u8>) -> Option<Vec<u8>> {
+        use crate::level::{self, preview::LevelCaption};
+        let manifest = level::parse_manifest("the level", &input.bytes).ok()?;
+        let level = level::Level::from_manifest(manifest, |mesh| Some(level::MeshRef::Key(mesh.into()))).ok()?;
+        let report: serde_json::Value = serde_json::from_slice(&report).ok()?;
+        let batches = report["batches"].as_array()?;
+        let groups: Vec<Vec<usize>> = batches
+            .iter()
+            .map(|b| serde_json::from_value(b["instances"].clone()).unwrap_or_default())
+            .collect();
+        let cull = &report["cull"];
+        let caption = LevelCaption {
+            name: report["name"]
+                .as_str()
+                .filter(|n| !n.is_empty())
+                .unwrap_or("level")
+                .into(),
+            instances: level.instances.len(),
+            batches: groups.len(),
+            triangles: report["triangles_after"].as_u64().unwrap_or(0) as usize,
+            cull: cull["culled_share"].as_f64().map(|share| {
+                let count = |name: &str| cull[name].as_u64().unwrap_or(0) as usize;
+                (share, count("wrongly_culled"), count("cameras"))
+            }),
+        };
+        let (store, limits) = (Arc::clone(&self.store), self.settings.ingest_limits());
+        let runtime = tokio::runtime::Handle::current();
+        // Drawing is CPU-bound between the store's reads: it runs on a blocking thread.
+        let drawn = tokio::task::spawn_blocking(move || {
+            let meshes = runtime
+                .block_on(level::placed_meshes(&level, store.as_ref(), &limits))
+                .ok()?;
+            let occluder = level::occluder_mesh(&glb).ok()?;
+            let sheet = level::preview::sheet(&level, &meshes, &occluder, &groups, &caption).ok()?;
+            Some(crate::eval::preview::png(&sheet))
+        });
+        drawn.await.ok().flatten()
+    }
+}
+
 /// The preview sheet (PNG) of a result: its input read again, the GLB's solid and panels over
 /// it, and the report's figures in the caption. None where the input or GLB cannot be read.
 fn draw_preview(
@@ -878,6 +955,8 @@ const POLL: Duration = Duration::from_secs(1);
 /// Runs `workers` tasks that take jobs from the store's queue until `stop` turns true; each
 /// finishes the job in hand first. Jobs still queued stay on the queue.
 pub async fn run_workers(service: Arc<Service>, workers: usize, stop: watch::Receiver<bool>) {
+    service.workers.fetch_add(workers, std::sync::atomic::Ordering::Relaxed);
+    service.update_gauges().await;
     let tasks: Vec<_> = (0..workers)
         .map(|_| {
             let (service, stop) = (Arc::clone(&service), stop.clone());
@@ -898,6 +977,7 @@ pub async fn run_workers(service: Arc<Service>, workers: usize, stop: watch::Rec
     for task in tasks {
         let _ = task.await;
     }
+    service.workers.fetch_sub(workers, std::sync::atomic::Ordering::Relaxed);
 }
 
 /// The store the settings name: NATS JetStream at `service.nats_url`, or sled under

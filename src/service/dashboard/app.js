@@ -56,16 +56,22 @@ async function refreshJobs() {
       cell(row, new Date(job.created_ms).toLocaleTimeString());
       row.onclick = () => showJob(job.id);
     }
-    $("running").textContent = "running " + jobs.filter((j) => j.state === "running").length;
   } catch (e) {
-    $("running").textContent = "jobs: " + e.message;
+    $("upload-status").textContent = "jobs: " + e.message;
   }
   try {
-    const health = await (await fetch("/healthz")).json();
-    $("queue").textContent = "queue " + health.queue_depth;
+    const activity = await json("/v1/activity");
+    $("queue").textContent = "queue " + activity.queue_depth;
+    $("workers").textContent = `workers busy ${activity.running}/${activity.workers}`;
+    $("cache").textContent = `cache ${size(activity.cache_bytes)} of ${size(activity.max_cache_bytes)}`;
   } catch (e) {
     $("queue").textContent = "queue ?";
   }
+}
+
+function size(bytes) {
+  const [unit, scale] = bytes >= 2 ** 30 ? ["GiB", 2 ** 30] : bytes >= 2 ** 20 ? ["MiB", 2 ** 20] : ["KiB", 2 ** 10];
+  return (bytes / scale).toFixed(bytes >= 10 * scale ? 0 : 1) + " " + unit;
 }
 
 function figure(list, name, value) {
@@ -154,8 +160,9 @@ async function showResult(job) {
     }
   }
   const figures = $("job-figures");
-  if (job.kind === "mesh" && !$("preview").src) {
-    const response = await api("/v1/occluders/" + key + "/preview.png");
+  if (!$("preview").src) {
+    const sheet = (job.kind === "mesh" ? "/v1/occluders/" : "/v1/levels/") + key + "/preview.png";
+    const response = await api(sheet);
     if (response.ok) $("preview").src = URL.createObjectURL(await response.blob());
   }
   if (figures.childElementCount) return;
@@ -170,9 +177,17 @@ async function showResult(job) {
       figure(figures, "false pixels", report.quality.false_pixels);
     }
   } else {
-    figure(figures, "instances", report.instances);
+    figure(figures, "instances", `${report.instances} of ${report.unique_meshes} meshes`);
+    figure(figures, "triangles", `${report.triangles_before} placed -> ${report.triangles_after} occluder`);
+    figure(figures, "draw calls", `${report.draw_calls_before} -> ${report.draw_calls_after}`);
+    if (report.cull) {
+      figure(figures, "culled", (report.cull.culled_share * 100).toFixed(1) + `% in view (${report.cull.cameras} cameras)`);
+      figure(figures, "wrongly culled", report.cull.wrongly_culled);
+    }
     figure(figures, "batches", report.batches.length);
-    figure(figures, "triangles", report.triangles_after);
+    for (const batch of report.batches) {
+      figure(figures, batch.name, `${batch.triangles} triangles, ${batch.instances.length} instances`);
+    }
   }
   const total = Object.values(report.timings_ms || {}).reduce((a, b) => a + b, 0);
   figure(figures, "cook time", total.toFixed(0) + " ms");

@@ -7,6 +7,8 @@ use crate::gpu::{self, Gpu, GpuError};
 use crate::mesh::{Format, Mesh, load_file, topology::orient_closed_components};
 use indicatif::ProgressBar;
 use serde::Serialize;
+use serde_json::Value;
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -182,9 +184,104 @@ fn print_row(name: &str, r: &Report, judged: Option<&Quality>) {
     );
 }
 
+/// One mesh's figures as a bench JSON holds them (this run's or an earlier one's).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Figures {
+    /// The cook's milliseconds, eval left out.
+    cook_ms: f64,
+    coverage: f64,
+    triangles: u64,
+    false_non_below: u64,
+}
+
+fn figures(row: &Value) -> Option<Figures> {
+    let report = &row["report"];
+    let timings = report["timings_ms"].as_object()?;
+    let total: f64 = timings.values().filter_map(Value::as_f64).sum();
+    Some(Figures {
+        cook_ms: total - timings.get("eval").and_then(Value::as_f64).unwrap_or(0.0),
+        coverage: report["quality"]["coverage"].as_f64()?,
+        triangles: report["occluder"]["triangles"].as_u64()?,
+        false_non_below: report["quality"]["false_pixels_non_below"].as_u64()?,
+    })
+}
+
+/// The run's totals: meshes cooked per second of cook time (eval left out), and each stage's
+/// share of that time, largest first.
+pub fn summary(rows: &[BenchRow]) -> String {
+    let reports: Vec<&Report> = rows.iter().filter_map(|r| r.report.as_ref()).collect();
+    let mut stages = Timings::default();
+    for r in &reports {
+        for (stage, ms) in r.timings_ms.0.iter().filter(|(stage, _)| stage != "eval") {
+            stages.add(stage, *ms);
+        }
+    }
+    let total = stages.total();
+    stages.0.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let shares: Vec<String> = stages
+        .0
+        .iter()
+        .filter(|(_, ms)| *ms >= 0.005 * total)
+        .map(|(stage, ms)| format!("{stage} {:.1}%", 100.0 * ms / total))
+        .collect();
+    format!(
+        "{} meshes in {:.2} s of cook time: {:.2} meshes/s; stage shares: {}",
+        reports.len(),
+        total / 1e3,
+        reports.len() as f64 / (total / 1e3).max(1e-9),
+        shares.join(", ")
+    )
+}
+
+/// This run against an earlier bench JSON, mesh by mesh: cook time and speed-up (earlier over
+/// now), coverage, triangles and non-below false pixels, then the totals over the meshes both
+/// cooked.
+pub fn compare(rows: &[BenchRow], earlier: &Value) -> Result<String, String> {
+    let earlier: HashMap<&str, Figures> = earlier
+        .as_array()
+        .ok_or("the earlier run is not a bench JSON (an array of rows)")?
+        .iter()
+        .filter_map(|row| Some((row["mesh"].as_str()?, figures(row)?)))
+        .collect();
+    let mut lines = vec![format!(
+        "{:<34} {:>9} {:>9} {:>8} {:>17} {:>11} {:>9}",
+        "mesh", "then_ms", "now_ms", "speedup", "coverage", "triangles", "false_nb"
+    )];
+    let (mut then_total, mut now_total) = (0.0, 0.0);
+    for row in rows {
+        let now = serde_json::to_value(row).ok().as_ref().and_then(figures);
+        let (Some(now), Some(then)) = (now, earlier.get(row.mesh.as_str())) else {
+            continue;
+        };
+        then_total += then.cook_ms;
+        now_total += now.cook_ms;
+        lines.push(format!(
+            "{:<34} {:>9.1} {:>9.1} {:>7.2}x {:>6.1}% -> {:>5.1}% {:>4} -> {:>4} {:>3} -> {:>2}",
+            row.mesh,
+            then.cook_ms,
+            now.cook_ms,
+            then.cook_ms / now.cook_ms.max(1e-9),
+            then.coverage * 100.0,
+            now.coverage * 100.0,
+            then.triangles,
+            now.triangles,
+            then.false_non_below,
+            now.false_non_below,
+        ));
+    }
+    lines.push(format!(
+        "{} meshes in both: {:.2} s then, {:.2} s now, {:.2}x",
+        lines.len() - 1,
+        then_total / 1e3,
+        now_total / 1e3,
+        then_total / now_total.max(1e-9)
+    ));
+    Ok(lines.join("\n"))
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{EXPOSURE_STAGES, judge, stage_sum};
+    use super::{BenchRow, EXPOSURE_STAGES, compare, judge, stage_sum, summary};
     use crate::cook::{STAGES, Timings, cook};
     use crate::mesh::shapes::torus;
 
@@ -198,6 +295,43 @@ mod tests {
         assert_eq!(judged.views_non_below, 100);
         assert_eq!(judged.false_pixels, 0);
         assert!(judged.coverage > 0.5, "{judged:?}");
+    }
+
+    #[test]
+    fn compare_gives_the_speedup_against_an_earlier_run() {
+        let settings = crate::config::load(None, &[]).expect("defaults load");
+        let cooked = cook(torus(1.0, 0.45, 32, 16), Default::default(), 0.0, &settings, true).expect("cooks");
+        let rows = vec![BenchRow {
+            mesh: "torus".into(),
+            report: Some(cooked.report),
+            judged: None,
+            error: None,
+        }];
+        // The same run, every stage but eval twice as slow.
+        let mut earlier = serde_json::to_value(&rows).expect("rows serialize");
+        for (stage, ms) in earlier[0]["report"]["timings_ms"]
+            .as_object_mut()
+            .expect("timings")
+            .iter_mut()
+        {
+            if stage != "eval" {
+                *ms = (ms.as_f64().expect("ms") * 2.0).into();
+            }
+        }
+        let table = compare(&rows, &earlier).expect("compares");
+        let line = table
+            .lines()
+            .find(|l| l.starts_with("torus"))
+            .expect("a row for the torus");
+        assert!(line.contains(" 2.00x"), "{table}");
+        assert!(table.ends_with("2.00x"), "{table}");
+        assert!(compare(&rows, &serde_json::json!({})).is_err());
+        let summary = summary(&rows);
+        assert!(
+            summary.starts_with("1 meshes in ") && summary.contains("meshes/s"),
+            "{summary}"
+        );
+        assert!(!summary.contains("eval"), "{summary}");
     }
 
     #[test]

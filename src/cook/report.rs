@@ -23,7 +23,7 @@ impl Serialize for Timings {
 
 impl Timings {
     /// A stage that runs in several places adds up under one name.
-    pub(super) fn add(&mut self, stage: &str, ms: f64) {
+    pub(crate) fn add(&mut self, stage: &str, ms: f64) {
         match self.0.iter_mut().find(|(s, _)| s == stage) {
             Some((_, total)) => *total += ms,
             None => self.0.push((stage.to_string(), ms)),

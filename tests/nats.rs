@@ -253,6 +253,10 @@ fn two_api_nodes_share_dedup_and_cache_and_outlive_each_other() {
         assert!(start.elapsed() < Duration::from_secs(10), "jobs left on the queue");
         std::thread::sleep(Duration::from_millis(50));
     }
+    let ids: Vec<&str> = jobs.iter().map(String::as_str).chain([job]).collect();
+    for limit in [3, 50] {
+        assert_lists_newest(&b.base, &ids, limit);
+    }
 }
 
 #[test]

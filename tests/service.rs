@@ -98,6 +98,11 @@ fn submit_dedupe_cache_and_headers() {
     for accepted in [&fbx, &other] {
         wait_for(base, accepted.json()["job"].as_str().unwrap(), Duration::from_secs(60));
     }
+    let (fbx_job, other_job) = (fbx.json()["job"].clone(), other.json()["job"].clone());
+    let ids = [job, fbx_job.as_str().unwrap(), other_job.as_str().unwrap()];
+    for limit in [1, 2, 50] {
+        assert_lists_newest(base, &ids, limit);
+    }
 
     let unknown = "0".repeat(64);
     get(&format!("{base}/v1/occluders/{unknown}"), &[]).assert_error(404, "unknown_key");

@@ -274,9 +274,7 @@ impl Service {
     /// The `limit` most recently created jobs, newest first, with the latest progress of those
     /// running here.
     pub async fn recent_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
-        let mut jobs = self.store.jobs().await?;
-        jobs.sort_by(|a, b| b.created_ms.cmp(&a.created_ms).then_with(|| b.id.cmp(&a.id)));
-        jobs.truncate(limit);
+        let mut jobs = self.store.newest_jobs(limit).await?;
         let live = self.live.lock().unwrap();
         for job in &mut jobs {
             if let Some(latest) = live.get(&job.id) {

@@ -121,6 +121,9 @@ pub trait Store: Send + Sync + 'static {
     async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
     /// Every job record: those queued or running, and those ended but not yet collected.
     async fn jobs(&self) -> StoreResult<Vec<Job>>;
+    /// The `limit` newest job records, newest first. Ids begin with their creation time in
+    /// fixed-width hex, so the newest are the greatest; only those are read.
+    async fn newest_jobs(&self, limit: usize) -> StoreResult<Vec<Job>>;
     async fn delete_job(&self, id: &str) -> StoreResult<()>;
 
     /// Claims `key` for the job `id`, unless a job holds it already: then that claim.

@@ -431,6 +431,17 @@ impl Store for NatsStore {
         Ok(jobs)
     }
 
+    async fn newest_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
+        // The bucket lists its keys in no order: all of them, but only the newest records.
+        let mut ids = Self::keys(&self.jobs).await?;
+        ids.sort_unstable_by(|a, b| b.cmp(a));
+        let mut jobs = Vec::with_capacity(limit.min(ids.len()));
+        for id in ids.iter().take(limit) {
+            jobs.extend(Self::record::<Job>(&self.jobs, id).await?);
+        }
+        Ok(jobs)
+    }
+
     async fn delete_job(&self, id: &str) -> StoreResult<()> {
         // Purged from the bucket's stream: a KV delete would leave a marker behind for each id.
         let subject = format!("{}{id}", self.jobs.prefix);

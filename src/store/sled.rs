@@ -216,6 +216,15 @@ impl Store for SledStore {
         self.all_jobs()
     }
 
+    async fn newest_jobs(&self, limit: usize) -> StoreResult<Vec<Job>> {
+        self.jobs
+            .iter()
+            .rev()
+            .take(limit)
+            .map(|entry| decode(&entry.map_err(backend)?.1))
+            .collect()
+    }
+
     async fn delete_job(&self, id: &str) -> StoreResult<()> {
         self.jobs.remove(id).map_err(backend)?;
         Ok(())

@@ -175,3 +175,19 @@ pub fn wait_for(base: &str, job: &str, limit: Duration) -> Value {
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// `GET /v1/jobs?limit=N` lists the N newest of `ids` (every job the store holds), newest first:
+/// ids begin with their creation time, so the greatest.
+pub fn assert_lists_newest(base: &str, ids: &[&str], limit: usize) {
+    let mut expected = ids.to_vec();
+    expected.sort_unstable_by(|a, b| b.cmp(a));
+    expected.truncate(limit);
+    let listed = get(&format!("{base}/v1/jobs?limit={limit}"), &[]).json();
+    let listed: Vec<&str> = listed["jobs"]
+        .as_array()
+        .expect("a list of jobs")
+        .iter()
+        .map(|j| j["id"].as_str().expect("an id"))
+        .collect();
+    assert_eq!(listed, expected);
+}

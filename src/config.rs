@@ -103,6 +103,10 @@ pub struct CookSettings {
     pub shapes: Vec<Shape>,
     pub quad_grid: usize,
     pub min_patch_area: f64,
+    /// Openings narrower than this, in world units, count as closed (0: none). Left out of
+    /// the cache key while 0, so that keys from before it stay valid.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub smallest_hole: f64,
     pub cpsv_pixels: usize,
     pub cpsv_back_share: f64,
     pub cpsv_inside_faces: usize,
@@ -278,6 +282,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.min_silhouette_gain", c.min_silhouette_gain, 0.0, 1.0)?;
     check("cook.quad_grid", c.quad_grid as f64, 8.0, 4096.0)?;
     check("cook.min_patch_area", c.min_patch_area, 0.0, 1.0)?;
+    check("cook.smallest_hole", c.smallest_hole, 0.0, 1e12)?;
     check("cook.cpsv_pixels", c.cpsv_pixels as f64, 8.0, 1024.0)?;
     check("cook.cpsv_back_share", c.cpsv_back_share, 0.0, 1.0)?;
     check("cook.cpsv_inside_faces", c.cpsv_inside_faces as f64, 1.0, 6.0)?;
@@ -348,6 +353,10 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("eval.pixels", e.pixels as f64, 16.0, 4096.0)?;
     check("eval.outside_samples", e.outside_samples as f64, 0.0, 10_000_000.0)?;
     Ok(())
+}
+
+fn is_zero(value: &f64) -> bool {
+    *value == 0.0
 }
 
 fn check(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {

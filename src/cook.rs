@@ -11,6 +11,7 @@ pub use report::{BoxReport, Cooked, InputReport, OccluderReport, PanelReport, Re
 
 use crate::config::{CookSettings, Settings};
 use crate::eval::{Quality, evaluate};
+use crate::geom::openings::{Opening, close_openings};
 use crate::geom::raster;
 use crate::gpu::{self, Gpu, GpuError};
 use crate::key::{PIPELINE_VERSION, cache_key};
@@ -26,10 +27,11 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 /// The stages of a cook, in order, for progress reports.
-pub const STAGES: [&str; 17] = [
+pub const STAGES: [&str; 18] = [
     "ingest",
     "key",
     "orient",
+    "openings",
     "device",
     "surface",
     "inside",
@@ -100,7 +102,9 @@ pub fn cook_with_progress(
     let uses = |shape: Shape| cook.shapes.contains(&shape);
     let mut run = Run::new(ingest_ms, progress);
     let key = run.stage("key", || cache_key(&mesh, cook))?;
-    let topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
+    let mut topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
+    let input = InputReport::new(&mesh, ingest, &topology);
+    let openings = run.close_openings(&mut mesh, &mut topology, cook.smallest_hole)?;
     run.open_device(cook.device)?;
     let grid = fit_grid(&mesh, cook.resolution);
     let surface = run.on_device("surface", |gpu| voxel::surface(&mesh, &grid, gpu))?;
@@ -151,15 +155,13 @@ pub fn cook_with_progress(
         panels: selection.panels.iter().map(|&i| panels[i]).collect(),
     };
     let inner_count = inner.iter().filter(|&&v| v).count();
-    let exposed_boxes = voxel_boxes.len() - box_candidates.len();
-    let exposed = [exposed_voxels, exposed_boxes, quads_shown[0]];
-    let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
+    let exposed = [exposed_voxels, voxel_boxes.len() - box_candidates.len(), quads_shown[0]];
     run.note_exposure(open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
+    let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
     run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
-    let quality = match with_eval {
-        false => None,
-        true => Some(run.evaluate(&mesh, &topology, &occluder, settings)?),
-    };
+    let quality = with_eval
+        .then(|| run.evaluate(&mesh, &topology, &occluder, settings))
+        .transpose()?;
     let report = Report {
         voxels: VoxelReport::new(&surface, &inside, inner_count, exposed_voxels),
         boxes: BoxReport::new(
@@ -171,11 +173,8 @@ pub fn cook_with_progress(
         ),
         panels: PanelReport::new(quad_count, quads_shown, panels.len(), &occluder),
         occluder: OccluderReport::new(&occluder, selection.boxes.len(), selection.gains),
-        input: InputReport {
-            triangles: mesh.triangles.len(),
-            ingest,
-            topology,
-        },
+        input,
+        openings_closed: openings,
         pipeline_version: PIPELINE_VERSION,
         key,
         grid,
@@ -393,6 +392,39 @@ impl<'a> Run<'a> {
         self.gpu = placement.gpu.map(|g| Arc::new(g.timed()));
         self.notes.extend(placement.why_cpu);
         Ok(())
+    }
+
+    /// Closes the openings of `mesh` narrower than `width` and orients it again, with a note.
+    fn close_openings(
+        &mut self,
+        mesh: &mut Mesh,
+        topology: &mut Topology,
+        width: f64,
+    ) -> Result<Vec<Opening>, CookError> {
+        if width <= 0.0 || topology.boundary.is_empty() {
+            return Ok(Vec::new());
+        }
+        let openings = self.stage("openings", || {
+            let (closed, openings) = close_openings(mesh, &topology.boundary, width);
+            *mesh = closed;
+            *topology = orient_closed_components(mesh);
+            openings
+        })?;
+        self.note_openings(&openings, width);
+        Ok(openings)
+    }
+
+    fn note_openings(&mut self, openings: &[Opening], smallest_hole: f64) {
+        if !openings.is_empty() {
+            let count = |kind: &str| openings.iter().filter(|o| o.kind == kind).count();
+            self.notes.push(format!(
+                "{} openings narrower than smallest_hole {smallest_hole} count as closed ({} holes, {} gaps, {} seams): the occluder may hide what is seen through them, and eval judges against the mesh with them closed",
+                openings.len(),
+                count("hole"),
+                count("gap"),
+                count("seam")
+            ));
+        }
     }
 
     fn note_undecided(&mut self, cpsv: Option<&CpsvStats>) {

@@ -5,6 +5,7 @@
 mod common;
 use occluder_cook::cook::cook;
 use occluder_cook::eval::{Quality, ViewSet, evaluate};
+use occluder_cook::geom::openings::{boundary_loops, join_loops};
 use occluder_cook::mesh::{IngestLimits, load_file, topology::orient_closed_components};
 use std::path::Path;
 
@@ -103,6 +104,45 @@ fn open_meshes_have_no_false_pixels_from_above_and_keep_their_coverage() {
             q.coverage * 100.0,
             coverage - 1.0
         );
+    }
+}
+
+/// The teapot's lid sits in its rim across a gap 0.1 wide, through which its inside shows. With
+/// smallest_hole 0.15 the gap counts as closed, and the occluder is judged against the teapot
+/// with its two rim loops at y = 2.4 joined.
+#[test]
+fn the_teapot_with_its_lid_gap_closed_is_covered() {
+    let Some(dir) = common::corpus() else { return };
+    let (mut teapot, stats) = load_file(&dir.join("teapot.obj"), &IngestLimits::default()).expect("loads");
+    let mut settings = common::defaults();
+    settings.cook.smallest_hole = 0.15;
+    let cooked = cook(teapot.clone(), stats, 0.0, &settings, false).expect("cooks");
+    let closed = &cooked.report.openings_closed;
+    for o in closed {
+        println!("teapot: closed a {} {:.3} wide at {:?}", o.kind, o.width, o.position);
+    }
+    assert!(closed.iter().any(|o| o.kind == "gap" && o.width < 0.15), "{closed:?}");
+    assert!(cooked.report.notes.iter().any(|n| n.contains("smallest_hole")));
+    let topology = orient_closed_components(&mut teapot);
+    let rims: Vec<Vec<u32>> = boundary_loops(&topology.boundary)
+        .into_iter()
+        .filter(|l| l.iter().all(|&v| (teapot.positions[v as usize].y - 2.4).abs() < 1e-4))
+        .filter(|l| l.len() > 20)
+        .collect();
+    assert_eq!(rims.len(), 2, "the body's rim and the lid's");
+    join_loops(&mut teapot, &rims[0], &rims[1]);
+    let topology = orient_closed_components(&mut teapot);
+    for views in [64, JUDGE_VIEWS] {
+        let mut eval = settings.eval.clone();
+        eval.views = views;
+        let q = evaluate(&teapot, &topology.boundary, &cooked.occluder.mesh(), &eval, None).expect("evaluates");
+        println!(
+            "teapot, lid gap closed, {views} views: coverage {:.1}%, {} non-below false pixels",
+            q.coverage * 100.0,
+            q.false_pixels_non_below
+        );
+        assert_eq!(q.false_pixels_non_below, 0, "{views} views: {q:?}");
+        assert!(q.coverage >= 0.75, "{views} views: {q:?}");
     }
 }
 

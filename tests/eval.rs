@@ -38,6 +38,7 @@ fn the_preview_paints_false_pixels_red_and_only_those() {
     use occluder_cook::eval::preview::{Caption, Piece, pieces_of_mesh, sheet};
     let original = cuboid(Vec3::splat(-0.5), Vec3::splat(0.5), &[]);
     let caption = |triangles_out| Caption {
+        openings: Vec::new(),
         name: "cube".into(),
         triangles_in: 12,
         triangles_out,
@@ -68,4 +69,19 @@ fn the_preview_paints_false_pixels_red_and_only_those() {
     );
     let png = occluder_cook::eval::preview::png(&image);
     assert_eq!(&png[1..4], b"PNG");
+    // Openings that smallest_hole closed are outlined, in every view that sees them.
+    let outlined = |image: &image::RgbImage| {
+        image
+            .enumerate_pixels()
+            .filter(|(_, y, p)| *y < views && p.0 == [200, 0, 200])
+            .count()
+    };
+    assert_eq!(outlined(&image), 0);
+    let ring = vec![[-0.3, 0.5, -0.3], [0.3, 0.5, -0.3], [0.3, 0.5, 0.3], [-0.3, 0.5, 0.3]];
+    let with_opening = Caption {
+        openings: vec![ring],
+        ..caption(12)
+    };
+    let (image, _) = sheet(&original, &inside, &with_opening);
+    assert!(outlined(&image) > 200, "{} outlined", outlined(&image));
 }

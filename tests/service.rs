@@ -95,11 +95,23 @@ fn submit_dedupe_cache_and_headers() {
     let other = post(&format!("{base}/v1/cook?resolution=32"), Some("model/obj"), &cube);
     assert_eq!(other.status, 202);
     assert_ne!(other.json()["key"], key);
-    for accepted in [&fbx, &other] {
+    // smallest_hole is part of the key once set; at 0 the key is the one without it.
+    let hole = post(&format!("{base}/v1/cook?smallest_hole=0.5"), Some("model/obj"), &cube);
+    assert_eq!(hole.status, 202);
+    assert_ne!(hole.json()["key"], key);
+    let zero = post(&format!("{base}/v1/cook?smallest_hole=0"), Some("model/obj"), &cube);
+    assert_eq!((zero.status, zero.json()["key"].as_str()), (200, Some(key)));
+    for accepted in [&fbx, &other, &hole] {
         wait_for(base, accepted.json()["job"].as_str().unwrap(), Duration::from_secs(60));
     }
     let (fbx_job, other_job) = (fbx.json()["job"].clone(), other.json()["job"].clone());
-    let ids = [job, fbx_job.as_str().unwrap(), other_job.as_str().unwrap()];
+    let hole_job = hole.json()["job"].clone();
+    let ids = [
+        job,
+        fbx_job.as_str().unwrap(),
+        other_job.as_str().unwrap(),
+        hole_job.as_str().unwrap(),
+    ];
     for limit in [1, 2, 50] {
         assert_lists_newest(base, &ids, limit);
     }
@@ -198,6 +210,10 @@ fn bad_requests_get_json_errors_and_the_server_keeps_serving() {
     .assert_error(400, "bad_settings");
     post(&format!("{cook}?resolutoin=64"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
     post(&format!("{cook}?resolution=-1"), Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
+    for width in ["-0.5", "nan", "inf", "wide"] {
+        let url = format!("{cook}?smallest_hole={width}");
+        post(&url, Some("model/obj"), &small_mesh(0)).assert_error(400, "bad_settings");
+    }
     post(&format!("{cook}?resolution=1024"), Some("model/obj"), &small_mesh(0)).assert_error(422, "over_limit");
     // A glTF of a few hundred bytes that declares 2e9 positions no bytes back: refused unread.
     let sparse = serde_json::json!({

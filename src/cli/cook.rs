@@ -52,6 +52,7 @@ pub fn run(args: CookArgs) -> Result<()> {
             triangles_in: r.input.triangles,
             triangles_out: r.occluder.triangles,
             judged: r.quality.as_ref().map(|q| (q.coverage, q.false_pixels, q.views)),
+            openings: r.openings_closed.iter().flat_map(|o| o.outline.clone()).collect(),
         };
         write_preview(path, &original, &preview::pieces(&cooked.occluder), &caption)?;
     }

@@ -2,6 +2,7 @@ use super::{SettingsArgs, write};
 use anyhow::{Context, Result};
 use clap::Args;
 use occluder_cook::eval;
+use occluder_cook::geom::openings::close_openings;
 use occluder_cook::gpu;
 use occluder_cook::mesh::{self, topology::orient_closed_components};
 use std::path::PathBuf;
@@ -25,7 +26,21 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let settings = args.settings.load()?;
     let limits = settings.ingest_limits();
     let (mut original_mesh, _) = mesh::load_file(&args.original, &limits)?;
-    let topology = orient_closed_components(&mut original_mesh);
+    let mut topology = orient_closed_components(&mut original_mesh);
+    let width = settings.cook.smallest_hole;
+    let mut openings = Vec::new();
+    if width > 0.0 {
+        let (closed, closed_openings) = close_openings(&original_mesh, &topology.boundary, width);
+        println!(
+            "judged against the original with {} openings narrower than smallest_hole {width} closed",
+            closed_openings.len()
+        );
+        if !closed_openings.is_empty() {
+            original_mesh = closed;
+            topology = orient_closed_components(&mut original_mesh);
+        }
+        openings = closed_openings;
+    }
     let occluder_mesh = match mesh::load_file(&args.occluder, &limits) {
         Ok((m, _)) => m,
         // An empty occluder is a fair answer for a mesh with no volume.
@@ -65,6 +80,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             triangles_in: original_mesh.triangles.len(),
             triangles_out: occluder_mesh.triangles.len(),
             judged: Some((q.coverage, q.false_pixels, q.views)),
+            openings: openings.iter().flat_map(|o| o.outline.clone()).collect(),
         };
         // Any mesh may be judged: it is drawn as one solid.
         let occluder = preview::pieces_of_mesh(&occluder_mesh, preview::Piece::Solid);

@@ -45,6 +45,10 @@ pub struct SettingsArgs {
     /// cook.target_coverage: share of the inner volume the boxes should fill.
     #[arg(long)]
     target_coverage: Option<f64>,
+    /// cook.smallest_hole: openings narrower than this (world units) count as closed; eval
+    /// judges against the original with the same openings closed.
+    #[arg(long, value_name = "WIDTH")]
+    smallest_hole: Option<f64>,
     /// Views of eval: a number of directions around the mesh (eval.views), `outside` for those,
     /// or `inside` for a cube map from the centre of its bounds (eval.view_set).
     #[arg(long)]
@@ -101,6 +105,7 @@ impl SettingsArgs {
         flag("cook.device", self.device.as_ref().map(|d| name(d)));
         flag("cook.max_triangles", int(self.max_triangles));
         flag("cook.target_coverage", self.target_coverage.map(toml::Value::Float));
+        flag("cook.smallest_hole", self.smallest_hole.map(toml::Value::Float));
         match self.views.as_deref().map(|v| (v, v.parse::<usize>())) {
             Some((_, Ok(n))) => flag("eval.views", int(Some(n))),
             Some((set, Err(_))) => flag("eval.view_set", Some(toml::Value::String(set.to_string()))),

@@ -48,6 +48,9 @@ pub struct Report {
     pub pipeline_version: &'static str,
     pub key: String,
     pub input: InputReport,
+    /// Openings narrower than `cook.smallest_hole`, counted as closed.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub openings_closed: Vec<crate::geom::openings::Opening>,
     pub grid: Grid,
     pub voxels: VoxelReport,
     pub boxes: BoxReport,
@@ -76,6 +79,17 @@ pub struct InputReport {
     pub triangles: usize,
     #[serde(flatten)]
     pub topology: Topology,
+}
+
+impl InputReport {
+    /// The mesh as read: before any opening is closed.
+    pub fn new(mesh: &crate::mesh::Mesh, ingest: IngestStats, topology: &Topology) -> InputReport {
+        InputReport {
+            ingest,
+            triangles: mesh.triangles.len(),
+            topology: topology.clone(),
+        }
+    }
 }
 
 #[derive(Clone, Debug, Serialize)]

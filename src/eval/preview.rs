@@ -18,6 +18,9 @@ pub struct Caption {
     /// Coverage and false pixels from the report's evaluation, with its view count; None: the
     /// sheet's own four views give them, and the caption says so.
     pub judged: Option<(f64, u64, usize)>,
+    /// The loops of openings that `cook.smallest_hole` counted as closed: outlined in every
+    /// view, and named in the legend.
+    pub openings: Vec<Vec<[f64; 3]>>,
 }
 
 /// The pixels of one view's side.
@@ -27,6 +30,7 @@ pub(crate) const CAPTION_PIXELS: u32 = 64;
 pub(crate) const BACKGROUND: Rgb<u8> = Rgb([246, 246, 242]);
 pub(crate) const FALSE_PIXEL: Rgb<u8> = Rgb([220, 20, 30]);
 const TEXT: Rgb<u8> = Rgb([30, 30, 36]);
+const OUTLINE: Rgb<u8> = Rgb([200, 0, 200]);
 
 /// The kinds of piece an occluder is drawn in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,7 +103,8 @@ pub fn sheet(original: &Mesh, occluder: &[PieceTriangle], caption: &Caption) -> 
     let (mut false_pixels, mut covered, mut seen) = (0u64, 0u64, 0u64);
     for (i, (name, dir)) in VIEWS.iter().enumerate() {
         let view = View::new(DVec3::from_array(*dir).normalize(), center, radius, VIEW_PIXELS);
-        let drawn = draw_view(&view, original, occluder);
+        let mut drawn = draw_view(&view, original, occluder);
+        outline(&view, &mut drawn.pixels, &caption.openings);
         false_pixels += drawn.false_pixels;
         covered += drawn.covered;
         seen += drawn.seen;
@@ -125,6 +130,7 @@ pub fn sheet(original: &Mesh, occluder: &[PieceTriangle], caption: &Caption) -> 
         .iter()
         .map(|k| (k.name(), k.colour()))
         .chain([("false", FALSE_PIXEL.0.map(f64::from))])
+        .chain((!caption.openings.is_empty()).then_some(("closed", OUTLINE.0.map(f64::from))))
         .collect();
     let legend_left = legend(&mut image, 2 * side - 8, y, &entries);
     // The name up to the legend; the rest of a long name is left out.
@@ -140,6 +146,26 @@ pub fn sheet(original: &Mesh, occluder: &[PieceTriangle], caption: &Caption) -> 
     text(&mut image, 8, y + 22, 2, &triangles);
     text(&mut image, 8, y + 44, 1, &figures);
     (image, false_pixels)
+}
+
+/// Draws each loop of `loops` over a view's pixels (rows from the top), one pixel wide.
+fn outline(view: &View, pixels: &mut [Rgb<u8>], loops: &[Vec<[f64; 3]>]) {
+    let n = view.pixels as f64;
+    for points in loops {
+        for (k, a) in points.iter().enumerate() {
+            let b = points[(k + 1) % points.len()];
+            let (a, b) = (view.project(DVec3::from_array(*a)), view.project(DVec3::from_array(b)));
+            let steps = (b.x - a.x).abs().max((b.y - a.y).abs()).ceil().clamp(1.0, 4.0 * n) as usize;
+            for s in 0..=steps {
+                let p = a + (b - a) * (s as f64 / steps as f64);
+                if (0.0..n).contains(&p.x) && (0.0..n).contains(&p.y) {
+                    // Raster rows run bottom-up; image rows top-down.
+                    let row = view.pixels - 1 - p.y as usize;
+                    pixels[row * view.pixels + p.x as usize] = OUTLINE;
+                }
+            }
+        }
+    }
 }
 
 /// One view drawn: its pixels, row by row from the top, and its figures.

@@ -102,7 +102,7 @@ fn edge_uses(mesh: &Mesh) -> HashMap<(u32, u32), EdgeUses> {
 }
 
 /// Connected components over shared vertices, numbered densely from 0, one entry per vertex.
-fn components(mesh: &Mesh) -> Vec<u32> {
+pub fn components(mesh: &Mesh) -> Vec<u32> {
     let mut parent: Vec<u32> = (0..mesh.positions.len() as u32).collect();
     fn root(parent: &mut [u32], mut x: u32) -> u32 {
         while parent[x as usize] != x {

@@ -883,6 +883,12 @@ fn draw_preview(
         name: report["key"].as_str().unwrap_or_default().chars().take(16).collect(),
         triangles_in: report["input"]["triangles"].as_u64().unwrap_or(0) as usize,
         triangles_out: report["occluder"]["triangles"].as_u64().unwrap_or(0) as usize,
+        openings: report["openings_closed"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .flat_map(|o| serde_json::from_value::<Vec<Vec<[f64; 3]>>>(o["outline"].clone()).unwrap_or_default())
+            .collect(),
         judged: quality["coverage"].as_f64().map(|coverage| {
             (
                 coverage,

@@ -168,6 +168,13 @@ fn outline(view: &View, pixels: &mut [Rgb<u8>], loops: &[Vec<[f64; 3]>]) {
     }
 }
 
+/// How brightly a triangle is drawn: the more it faces the camera, the brighter (0.35 to 0.95).
+pub(crate) fn brightness(view: &View, tri: &[DVec3; 3]) -> f64 {
+    let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+    let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
+    0.35 + 0.6 * normal.dot(view.towards_camera(centre)).abs()
+}
+
 /// One view drawn: its pixels, row by row from the top, and its figures.
 struct Drawn {
     pixels: Vec<Rgb<u8>>,
@@ -197,8 +204,7 @@ fn draw_view(view: &View, original: &Mesh, occluder: &[PieceTriangle]) -> Drawn 
     let n = view.pixels * view.pixels;
     let (mut depth, mut shade) = (vec![f64::INFINITY; n], vec![0.0f64; n]);
     for tri in original.triangles_f64() {
-        let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
-        let lit = 0.35 + 0.6 * normal.dot(view.dir).abs();
+        let lit = brightness(view, &tri);
         rasterize(view, &tri, |i, d| {
             if d < depth[i] {
                 depth[i] = d;

@@ -93,27 +93,31 @@ impl<'a> SurfaceIndex<'a> {
     /// The distance from `p` to the nearest triangle within the tolerance for which
     /// `wanted(triangle)` holds, if there is one.
     pub fn nearest_where(&self, p: DVec3, wanted: impl Fn(usize) -> bool) -> Option<f64> {
-        let [rx, ry, rz] = self.bucket_range(p, p);
-        let b = self.bucket(rx.start, ry.start, rz.start);
-        self.triangles[self.offsets[b]..self.offsets[b + 1]]
+        self.bucket_at(p)
             .iter()
             .filter(|&&t| wanted(t as usize))
-            .map(|&t| {
-                let [a, b, c] = self.mesh.corners(t as usize).map(|v| v.as_dvec3());
-                closest_on_triangle(p, a, b, c).distance(p)
-            })
+            .map(|&t| self.distance(t as usize, p))
             .filter(|&d| d <= self.tolerance)
             .min_by(f64::total_cmp)
     }
 
     /// Whether `accept(triangle, its distance from p)` holds for a triangle in `p`'s bucket.
     fn any_near(&self, p: DVec3, accept: impl Fn(usize, f64) -> bool) -> bool {
+        self.bucket_at(p)
+            .iter()
+            .any(|&t| accept(t as usize, self.distance(t as usize, p)))
+    }
+
+    /// The triangles of `p`'s bucket: every one within the tolerance of `p`, and some farther.
+    fn bucket_at(&self, p: DVec3) -> &[u32] {
         let [rx, ry, rz] = self.bucket_range(p, p);
         let b = self.bucket(rx.start, ry.start, rz.start);
-        self.triangles[self.offsets[b]..self.offsets[b + 1]].iter().any(|&t| {
-            let [a, b, c] = self.mesh.corners(t as usize).map(|v| v.as_dvec3());
-            accept(t as usize, closest_on_triangle(p, a, b, c).distance(p))
-        })
+        &self.triangles[self.offsets[b]..self.offsets[b + 1]]
+    }
+
+    fn distance(&self, t: usize, p: DVec3) -> f64 {
+        let [a, b, c] = self.mesh.corners(t).map(|v| v.as_dvec3());
+        closest_on_triangle(p, a, b, c).distance(p)
     }
 }
 

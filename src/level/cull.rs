@@ -13,6 +13,7 @@
 pub mod gpu;
 
 use super::{Level, MeshRef};
+use crate::eval::preview::brightness;
 use crate::geom::camera::View;
 use crate::geom::raster::{rasterize, rasterize_inner};
 use crate::gpu::Gpu;
@@ -390,20 +391,12 @@ pub fn render_instances(
                     frame.depth[p] = d as f32;
                     frame.instance[p] = *i as u32;
                     // Lit by the direction to the camera at the triangle, found once it shows.
-                    frame.light[p] = *lit.get_or_insert_with(|| light(view, &tri));
+                    frame.light[p] = *lit.get_or_insert_with(|| brightness(view, &tri) as f32);
                 }
             });
         }
     }
     frame
-}
-
-/// How brightly a triangle faces the camera.
-fn light(view: &View, tri: &[DVec3; 3]) -> f32 {
-    let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
-    let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
-    let towards = view.towards_camera(centre);
-    (0.35 + 0.6 * normal.dot(towards).abs()) as f32
 }
 
 /// Which instances show at least one pixel.

@@ -910,17 +910,10 @@ async fn occluder_glb(
 ) -> Result<Response, ApiError> {
     check_key(&key)?;
     let etag = format!("\"{key}\"");
-    let cache_headers = immutable(&etag);
-    if matches_etag(&headers, &etag)
-        && state
-            .service
-            .result_meta(&key)
-            .await
-            .map_err(ApiError::storage)?
-            .is_some()
-    {
-        return Ok((StatusCode::NOT_MODIFIED, cache_headers).into_response());
+    if let Some(not_modified) = not_modified(&state, &headers, &key, &etag).await? {
+        return Ok(not_modified);
     }
+    let cache_headers = immutable(&etag);
     match state.service.result_glb(&key).await.map_err(ApiError::storage)? {
         Ok(glb) => {
             let content_type = (header::CONTENT_TYPE, HeaderValue::from_static("model/gltf-binary"));
@@ -943,16 +936,33 @@ async fn occluder_report(State(state): State<AppState>, Path(key): Path<String>)
     }
 }
 
-/// Whether an If-None-Match header names `etag` (or `*`).
-fn matches_etag(headers: &HeaderMap, etag: &str) -> bool {
-    headers
+/// 304 Not Modified where If-None-Match names `etag` (or `*`) and the result of `key` is stored:
+/// what a key names (its GLB, its preview) never changes while it is.
+async fn not_modified(
+    state: &AppState,
+    headers: &HeaderMap,
+    key: &str,
+    etag: &str,
+) -> Result<Option<Response>, ApiError> {
+    let named = headers
         .get(header::IF_NONE_MATCH)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| {
             v.split(',')
                 .map(str::trim)
                 .any(|t| t == "*" || t.trim_start_matches("W/") == etag)
-        })
+        });
+    if !named
+        || state
+            .service
+            .result_meta(key)
+            .await
+            .map_err(ApiError::storage)?
+            .is_none()
+    {
+        return Ok(None);
+    }
+    Ok(Some((StatusCode::NOT_MODIFIED, immutable(etag)).into_response()))
 }
 
 /// The headers of what a key names, which never changes.
@@ -982,16 +992,8 @@ async fn occluder_preview(
 ) -> Result<Response, ApiError> {
     check_key(&key)?;
     let etag = format!("\"{key}-preview\"");
-    if matches_etag(&headers, &etag)
-        && state
-            .service
-            .store
-            .preview(&key)
-            .await
-            .map_err(ApiError::storage)?
-            .is_some()
-    {
-        return Ok((StatusCode::NOT_MODIFIED, immutable(&etag)).into_response());
+    if let Some(not_modified) = not_modified(&state, &headers, &key, &etag).await? {
+        return Ok(not_modified);
     }
     match state.service.preview(&key).await.map_err(ApiError::storage)? {
         Some(png) => {

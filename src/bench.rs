@@ -50,7 +50,7 @@ pub fn corpus_files(corpus: &Path) -> std::io::Result<Vec<PathBuf>> {
 pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize, bar: &ProgressBar) -> Vec<BenchRow> {
     let judge_gpu = gpu::for_choice(settings.cook.device).ok().and_then(|p| p.gpu);
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>5} {:>8} {:>7} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}",
         "mesh",
         "dev",
         "tris_in",
@@ -58,6 +58,7 @@ pub fn run(files: &[PathBuf], settings: &Settings, judge_views: usize, bar: &Pro
         "boxes",
         "quads",
         "ptchs",
+        "surfp",
         "coverage",
         "false",
         "false_nb",
@@ -156,7 +157,7 @@ fn print_row(name: &str, r: &Report, judged: Option<&Quality>) {
         false => format!("{:.1}", device.total() - device.get("eval")),
     };
     println!(
-        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8} {:>8.1} {:>9}",
+        "{:<34} {:>4} {:>7} {:>5} {:>5} {:>5} {:>5} {:>5} {:>7.1}% {:>7} {:>7} {:>7.2}% {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8} {:>8.1} {:>9}",
         name,
         match (r.gpu_stages.is_empty(), r.gpu_stages.contains(&"inside")) {
             (true, _) => "cpu",
@@ -168,6 +169,7 @@ fn print_row(name: &str, r: &Report, judged: Option<&Quality>) {
         r.occluder.boxes,
         r.occluder.quads,
         r.occluder.patches,
+        r.occluder.surface_pieces,
         q.coverage * 100.0,
         q.false_pixels,
         q.false_pixels_non_below,
@@ -176,7 +178,10 @@ fn print_row(name: &str, r: &Report, judged: Option<&Quality>) {
         t.get("surface"),
         t.get("inside"),
         stage_sum(t, EXPOSURE_STAGES),
-        stage_sum(t, &["boxes", "refine", "quads", "patches", "select+merge"]),
+        stage_sum(
+            t,
+            &["boxes", "refine", "quads", "patches", "surface-pieces", "select+merge"]
+        ),
         cook_ms,
         gpu_ms,
         t.get("eval"),

@@ -1,5 +1,5 @@
 //! One mesh through the whole pipeline: orient, voxelize, classify, expand boxes, refine,
-//! find quads and patches, select by silhouette, merge, and optionally evaluate.
+//! find quads, patches and surface pieces, select by silhouette, merge, and optionally evaluate.
 //!
 //! [`cook_with_progress`] is the list of stages; each is a function from named inputs to a named
 //! output, and [`Run`] times it, reports its progress and, for a stage with a GPU twin, falls
@@ -18,7 +18,9 @@ use crate::key::{PIPELINE_VERSION, cache_key};
 use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_components};
 use crate::occluder::boxes::{self, VoxelBox};
 use crate::occluder::exposure::OpenViews;
-use crate::occluder::{Occluder, Panel, Shape, WorldBox, patches, quads, refine, select};
+use crate::occluder::{
+    Occluder, Panel, Shape, SurfacePiece, WorldBox, panel_mesh, patches, quads, refine, select, surface_pieces,
+};
 use crate::voxel::{self, Grid, InsideMethod, cpsv::CpsvStats, winding::WindingField};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -27,7 +29,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 /// The stages of a cook, in order, for progress reports.
-pub const STAGES: [&str; 18] = [
+pub const STAGES: [&str; 19] = [
     "ingest",
     "key",
     "orient",
@@ -44,6 +46,7 @@ pub const STAGES: [&str; 18] = [
     "quads",
     "exposure-quads",
     "patches",
+    "surface-pieces",
     "select+merge",
     "eval",
 ];
@@ -122,10 +125,9 @@ pub fn cook_with_progress(
         None => 0,
         Some(views) => run.on_device("exposure-voxels", |gpu| views.remove_exposed(&grid, &mut inner, gpu))?,
     };
-    let voxel_boxes = match uses(Shape::Boxes) {
-        true => run.stage("boxes", || boxes::expand(&inner, grid.dims, &expansion(cook)))?,
-        false => Vec::new(),
-    };
+    let voxel_boxes = run.kind_stage(uses(Shape::Boxes), "boxes", || {
+        boxes::expand(&inner, grid.dims, &expansion(cook))
+    })?;
     // Refinement and quads both look triangles up through it.
     let field = run.stage("refine", || WindingField::new(&mesh, &topology.boundary))?;
     let refined = run.stage("refine", || {
@@ -136,24 +138,16 @@ pub fn cook_with_progress(
         None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),
         Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
     };
-    let quads_found = match uses(Shape::Quads) {
-        true => run.stage("quads", || find_quads(&mesh, &topology, &grid, &field, &inner, cook))?,
-        false => Vec::new(),
-    };
+    let quads_found = run.kind_stage(uses(Shape::Quads), "quads", || {
+        find_quads(&mesh, &topology, &grid, &field, &inner, cook)
+    })?;
     let quad_count = quads_found.len();
     let (mut panels, quads_shown) = match &open_views {
         None => (quads_found, [0, 0]),
         Some(views) => run.stage("exposure-quads", || unexposed_quads(views, quads_found))?,
     };
-    if uses(Shape::Patches) {
-        panels.extend(run.stage("patches", || find_patches(&mesh, &topology, cook))?);
-    }
-    // Selection merges as it goes; its last merge is the solid part of the occluder.
-    let selection = run.stage("select+merge", || select_pieces(&mesh, &box_candidates, &panels, cook))?;
-    let occluder = Occluder {
-        solid: selection.solid,
-        panels: selection.panels.iter().map(|&i| panels[i]).collect(),
-    };
+    panels.extend(run.kind_stage(uses(Shape::Patches), "patches", || find_patches(&mesh, &topology, cook))?);
+    let (occluder, selection) = run.choose(&mesh, &topology, &box_candidates, &panels, cook)?;
     let inner_count = inner.iter().filter(|&&v| v).count();
     let exposed = [exposed_voxels, voxel_boxes.len() - box_candidates.len(), quads_shown[0]];
     run.note_exposure(open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
@@ -171,7 +165,13 @@ pub fn cook_with_progress(
             &selection.boxes,
             inner_count,
         ),
-        panels: PanelReport::new(quad_count, quads_shown, panels.len(), &occluder),
+        panels: PanelReport::new(
+            quad_count,
+            quads_shown,
+            panels.len(),
+            selection.piece_candidates,
+            &occluder,
+        ),
         occluder: OccluderReport::new(&occluder, selection.boxes.len(), selection.gains),
         input,
         openings_closed: openings,
@@ -307,9 +307,85 @@ fn find_patches(mesh: &Mesh, topology: &Topology, cook: &CookSettings) -> Vec<Pa
     )
 }
 
-/// The pieces that add the most silhouette within the triangle budget, the boxes merged.
-fn select_pieces(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], cook: &CookSettings) -> select::Selection {
-    select::select(mesh, boxes, panels, cook.max_triangles, cook.min_silhouette_gain)
+/// Most surface pieces the selection weighs, largest first.
+const MAX_SURFACE_PIECES: usize = 1024;
+
+/// The flat regions of the mesh as pieces: corners within a tenth of the evaluation's depth
+/// tolerance (1e-4 of the bounding sphere's diameter) of their region's plane.
+fn find_surface_pieces(mesh: &Mesh, topology: &Topology) -> Vec<SurfacePiece> {
+    let (_, radius) = mesh.bounding_sphere();
+    surface_pieces::find(mesh, &topology.open_triangles, 2e-5 * radius)
+}
+
+fn sheet_triangles(selection: &select::Selection, sheets: &[Mesh]) -> usize {
+    selection.sheets.iter().map(|&i| sheets[i].triangles.len()).sum()
+}
+
+/// What the selection chose, with the occluder built from it.
+struct Chosen {
+    boxes: Vec<usize>,
+    gains: Vec<f64>,
+    /// Surface pieces it weighed.
+    piece_candidates: usize,
+}
+
+/// The pieces that add the most silhouette within the triangle budget, the boxes merged. Surface
+/// pieces smaller than half a patch a triangle are not worth their triangles. When all of the
+/// surface, as pieces, fits in the budget, it is the occluder if what it adds over the selection
+/// is worth its extra triangles at the selection's own price (a patch's two triangles for
+/// `min_silhouette_gain`): it hides exactly what the mesh hides.
+fn select_pieces(
+    mesh: &Mesh,
+    boxes: &[WorldBox],
+    panels: &[Panel],
+    pieces: Vec<SurfacePiece>,
+    cook: &CookSettings,
+) -> (Occluder, Chosen) {
+    let (lo, hi) = mesh.bounds();
+    let size = f64::from((hi - lo).max_element());
+    let worth = |p: &&SurfacePiece| p.area >= 0.5 * cook.min_patch_area * size * size * p.triangles.len() as f64;
+    let weighed: Vec<&SurfacePiece> = pieces.iter().filter(worth).take(MAX_SURFACE_PIECES).collect();
+    let sheets: Vec<Mesh> = panels
+        .iter()
+        .map(|p| panel_mesh(std::slice::from_ref(p)))
+        .chain(weighed.iter().map(|p| p.mesh()))
+        .collect();
+    let selection = select::select(mesh, boxes, &sheets, cook.max_triangles, cook.min_silhouette_gain);
+    let whole_triangles: usize = pieces.iter().map(|p| p.triangles.len()).sum();
+    let missed = 1.0 - selection.covered;
+    let extra = whole_triangles.saturating_sub(selection.solid.triangles.len() + sheet_triangles(&selection, &sheets));
+    let worth_it = missed >= cook.min_silhouette_gain * (extra.max(2) as f64 / 2.0);
+    if !pieces.is_empty() && whole_triangles <= cook.max_triangles && worth_it {
+        let chosen = Chosen {
+            boxes: Vec::new(),
+            gains: vec![1.0],
+            piece_candidates: weighed.len(),
+        };
+        let occluder = Occluder {
+            pieces,
+            ..Occluder::default()
+        };
+        return (occluder, chosen);
+    }
+    let (chosen_panels, chosen_pieces): (Vec<usize>, Vec<usize>) =
+        selection.sheets.iter().partition(|&&i| i < panels.len());
+    let occluder = Occluder {
+        solid: selection.solid,
+        panels: chosen_panels.iter().map(|&i| panels[i]).collect(),
+        pieces: chosen_pieces
+            .iter()
+            .map(|&i| SurfacePiece {
+                double_sided: true,
+                ..weighed[i - panels.len()].clone()
+            })
+            .collect(),
+    };
+    let chosen = Chosen {
+        boxes: selection.boxes,
+        gains: selection.gains,
+        piece_candidates: weighed.len(),
+    };
+    (occluder, chosen)
 }
 
 /// A cook under way: the stages' times and progress, the device they may use, and the notes
@@ -357,6 +433,31 @@ impl<'a> Run<'a> {
             _ => {}
         }
         Ok(out)
+    }
+
+    /// A stage that finds pieces of one kind: none, and not run, when `cook.shapes` leaves that
+    /// kind out.
+    fn kind_stage<T>(&mut self, used: bool, stage: &str, work: impl FnOnce() -> Vec<T>) -> Result<Vec<T>, CookError> {
+        match used {
+            true => self.stage(stage, work),
+            false => Ok(Vec::new()),
+        }
+    }
+
+    /// Finds the surface pieces and chooses among them and the other candidates. Selection merges
+    /// as it goes; its last merge is the solid part of the occluder.
+    fn choose(
+        &mut self,
+        mesh: &Mesh,
+        topology: &Topology,
+        boxes: &[WorldBox],
+        panels: &[Panel],
+        cook: &CookSettings,
+    ) -> Result<(Occluder, Chosen), CookError> {
+        let pieces = self.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
+            find_surface_pieces(mesh, topology)
+        })?;
+        self.stage("select+merge", || select_pieces(mesh, boxes, panels, pieces, cook))
     }
 
     /// Runs a stage with a GPU twin on the device when there is one; where the device cannot do

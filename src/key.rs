@@ -6,7 +6,7 @@ use crate::config::CookSettings;
 use crate::mesh::Mesh;
 
 /// Bumped whenever the pipeline's output for the same input and settings can change.
-pub const PIPELINE_VERSION: &str = "occluder-cook/pipeline/2";
+pub const PIPELINE_VERSION: &str = "occluder-cook/pipeline/3";
 
 pub fn cache_key(mesh: &Mesh, settings: &CookSettings) -> String {
     let bits = |t: usize| mesh.corners(t).map(|p| p.to_array().map(f32::to_bits));

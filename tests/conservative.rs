@@ -23,7 +23,8 @@ fn building_without_floor() {
     let (lo, hi) = (Vec3::new(-1.0, 0.0, -1.5), Vec3::new(1.0, 2.0, 1.5));
     let cooked = cook_evaluated(cuboid(lo, hi, &[2]));
     let q = cooked.report.quality.unwrap();
-    assert!(cooked.occluder.triangles() >= 12, "{:?}", cooked.report.notes);
+    // At least its five faces, as surface pieces or a box.
+    assert!(cooked.occluder.triangles() >= 10, "{:?}", cooked.report.notes);
     assert_vertices_inside(&cooked.occluder.mesh().positions, |p| in_box(p, lo, hi));
     assert_eq!(q.false_pixels_non_below, 0);
     assert!(q.coverage > 0.8, "coverage {}", q.coverage);

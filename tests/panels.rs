@@ -1,8 +1,9 @@
 //! Thin and flat geometry: quads inside walls thinner than a voxel, patches on single-sided
-//! planes, and openings that stay open.
+//! planes, and openings that stay open. Surface pieces are left out: they would be these meshes
+//! themselves (tests/surface_pieces.rs).
 
 mod common;
-use common::{concat, cook_evaluated, cuboid};
+use common::{VOXEL_AND_PANEL_SHAPES, concat, cook_evaluated_with, cuboid};
 use glam::{DVec3, Vec3};
 use occluder_cook::cook::Cooked;
 use occluder_cook::geom::camera::View;
@@ -30,7 +31,10 @@ fn assert_conservative(cooked: &Cooked) {
 fn slab_a_tenth_of_a_voxel_thick_gives_one_quad_inside_it() {
     // 64 voxels over 4 units: a voxel is 0.0625, the slab 0.00625.
     let half = 0.003125;
-    let cooked = cook_evaluated(cuboid(Vec3::new(-2.0, 0.0, -half), Vec3::new(2.0, 3.0, half), &[]));
+    let cooked = cook_evaluated_with(
+        cuboid(Vec3::new(-2.0, 0.0, -half), Vec3::new(2.0, 3.0, half), &[]),
+        &VOXEL_AND_PANEL_SHAPES,
+    );
     let half = f64::from(half);
     let quads = of_shape(&cooked, Shape::Quads);
     assert_eq!(quads.len(), 1, "{:?}", cooked.occluder.panels);
@@ -54,7 +58,7 @@ fn single_sided_plane_gives_a_patch_on_it() {
         ],
         triangles: vec![[0, 2, 1], [0, 3, 2]],
     };
-    let cooked = cook_evaluated(plane);
+    let cooked = cook_evaluated_with(plane, &VOXEL_AND_PANEL_SHAPES);
     let patches = of_shape(&cooked, Shape::Patches);
     assert!(!patches.is_empty(), "{:?}", cooked.report.notes);
     for c in patches.iter().flat_map(|p| p.corners) {
@@ -73,7 +77,7 @@ fn l_shaped_thin_wall_gives_two_quads() {
     let t = 0.05;
     let wall_a = cuboid(Vec3::new(-2.0, 0.0, 0.0), Vec3::new(2.0, 3.0, t), &[]);
     let wall_b = cuboid(Vec3::new(2.0 - t, 0.0, 0.0), Vec3::new(2.0, 3.0, 4.0), &[]);
-    let cooked = cook_evaluated(concat(&[wall_a, wall_b]));
+    let cooked = cook_evaluated_with(concat(&[wall_a, wall_b]), &VOXEL_AND_PANEL_SHAPES);
     let quads = of_shape(&cooked, Shape::Quads);
     assert_eq!(quads.len(), 2, "{quads:?}");
     let t = f64::from(t);
@@ -94,7 +98,7 @@ fn doorway_stays_open() {
         cuboid(Vec3::new(0.5, 0.0, 0.0), Vec3::new(2.0, 3.0, t), &[]),
         cuboid(Vec3::new(-0.5, 2.0, 0.0), Vec3::new(0.5, 3.0, t), &[]),
     ]);
-    let cooked = cook_evaluated(wall.clone());
+    let cooked = cook_evaluated_with(wall.clone(), &VOXEL_AND_PANEL_SHAPES);
     assert!(!of_shape(&cooked, Shape::Quads).is_empty());
     assert_conservative(&cooked);
     // Face on, every pixel whose centre is in the doorway (one pixel in from its edges) stays

@@ -182,13 +182,14 @@ fn write_occluder(path: &Path, cooked: &Cooked) -> Result<()> {
 /// One line on what was cooked, the quality figures when measured, then the notes.
 fn summarize(input: &Path, r: &Report) {
     print!(
-        "{}: {} triangles in, occluder of {} triangles from {} boxes, {} quads and {} patches in {:.1} ms",
+        "{}: {} triangles in, occluder of {} triangles from {} boxes, {} quads, {} patches and {} surface pieces in {:.1} ms",
         input.display(),
         r.input.triangles,
         r.occluder.triangles,
         r.occluder.boxes,
         r.occluder.quads,
         r.occluder.patches,
+        r.occluder.surface_pieces,
         r.timings_ms.total()
     );
     match &r.quality {

@@ -2,7 +2,7 @@
 
 use crate::eval::Quality;
 use crate::mesh::{IngestStats, Topology, glb};
-use crate::occluder::{Occluder, Panel, Shape, WorldBox, boxes::VoxelBox, panel_mesh};
+use crate::occluder::{Occluder, Panel, Shape, WorldBox, boxes::VoxelBox};
 use crate::voxel::{Classified, Grid, cpsv::CpsvStats};
 use serde::Serialize;
 
@@ -164,18 +164,27 @@ pub struct PanelReport {
     /// Quads that showed in part, cut down to their largest hidden rectangle.
     pub cut: usize,
     pub kept_panels: Vec<Panel>,
+    /// Flat regions of the surface the selection weighed.
+    pub surface_piece_candidates: usize,
 }
 
 impl PanelReport {
     /// `found` quads, of which `dropped` showed through an opening and `cut` showed in part,
-    /// then patches up to `candidates` panels in all.
-    pub(super) fn new(found: usize, [dropped, cut]: [usize; 2], candidates: usize, occluder: &Occluder) -> PanelReport {
+    /// then patches up to `candidates` panels in all, and `pieces` surface pieces weighed.
+    pub(super) fn new(
+        found: usize,
+        [dropped, cut]: [usize; 2],
+        candidates: usize,
+        pieces: usize,
+        occluder: &Occluder,
+    ) -> PanelReport {
         PanelReport {
             quad_candidates: found,
             patch_candidates: candidates - (found - dropped),
             exposed: dropped,
             cut,
             kept_panels: occluder.panels.clone(),
+            surface_piece_candidates: pieces,
         }
     }
 }
@@ -187,6 +196,8 @@ pub struct OccluderReport {
     pub boxes: usize,
     pub quads: usize,
     pub patches: usize,
+    /// Flat regions of the surface, drawn double-sided.
+    pub surface_pieces: usize,
     /// Silhouette share each piece added when it was chosen, in the order chosen.
     pub silhouette_gains: Vec<f64>,
 }
@@ -195,10 +206,11 @@ impl OccluderReport {
     pub(super) fn new(occluder: &Occluder, boxes: usize, silhouette_gains: Vec<f64>) -> OccluderReport {
         OccluderReport {
             triangles: occluder.triangles(),
-            vertices: occluder.solid.positions.len() + 4 * occluder.panels.len(),
+            vertices: occluder.single_sided().positions.len() + occluder.double_sided().positions.len(),
             boxes,
             quads: occluder.panels.iter().filter(|p| p.shape == Shape::Quads).count(),
             patches: occluder.panels.iter().filter(|p| p.shape == Shape::Patches).count(),
+            surface_pieces: occluder.pieces.len(),
             silhouette_gains,
         }
     }
@@ -210,7 +222,7 @@ pub struct Cooked {
 }
 
 impl Cooked {
-    /// The occluder as a GLB: the watertight solid and the double-sided panels as two
+    /// The occluder as a GLB: the watertight solid and the double-sided panels and pieces as two
     /// primitives, with the key and counts in `extras`.
     pub fn glb(&self) -> Vec<u8> {
         let r = &self.report;
@@ -221,13 +233,15 @@ impl Cooked {
             "boxes": r.occluder.boxes,
             "quads": r.occluder.quads,
             "patches": r.occluder.patches,
+            "surface_pieces": r.occluder.surface_pieces,
             "triangles": r.occluder.triangles,
         });
-        let panels = panel_mesh(&self.occluder.panels);
+        let solid = self.occluder.single_sided();
+        let panels = self.occluder.double_sided();
         let parts = [
             glb::Part {
                 name: crate::occluder::SOLID_PART,
-                mesh: &self.occluder.solid,
+                mesh: &solid,
                 double_sided: false,
             },
             glb::Part {

@@ -38,6 +38,8 @@ pub enum Piece {
     Boxes,
     Quads,
     Patches,
+    /// Flat regions of the surface itself.
+    Surface,
     /// Double-sided rectangles whose kind is not known (read back from a GLB).
     Panels,
     /// A mesh judged as a whole (any occluder, ours or not).
@@ -50,6 +52,7 @@ impl Piece {
             Piece::Boxes => "boxes",
             Piece::Quads => "quads",
             Piece::Patches => "patches",
+            Piece::Surface => "surface pieces",
             Piece::Panels => "panels",
             Piece::Solid => "occluder",
         }
@@ -60,6 +63,7 @@ impl Piece {
             Piece::Boxes | Piece::Solid => [40.0, 110.0, 230.0],
             Piece::Quads | Piece::Panels => [30.0, 170.0, 90.0],
             Piece::Patches => [235.0, 150.0, 20.0],
+            Piece::Surface => [225.0, 205.0, 40.0],
         }
     }
 }
@@ -75,10 +79,16 @@ pub fn pieces(occluder: &Occluder) -> Vec<PieceTriangle> {
             Shape::Boxes => Piece::Boxes,
             Shape::Quads => Piece::Quads,
             Shape::Patches => Piece::Patches,
+            Shape::Surface => Piece::Surface,
         };
         p.triangles().map(|t| (t, piece))
     });
-    solid.chain(panels).collect()
+    let pieces = occluder
+        .pieces
+        .iter()
+        .flat_map(|p| &p.triangles)
+        .map(|t| (t.map(DVec3::from_array), Piece::Surface));
+    solid.chain(panels).chain(pieces).collect()
 }
 
 /// The triangles of a mesh, all of one kind.

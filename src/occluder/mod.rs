@@ -1,6 +1,7 @@
 //! From the solid to an occluder: boxes where it is thick (expansion, sub-voxel refinement,
 //! the merge into one watertight mesh), quads inside it and patches on its surface where it is
-//! thin or flat, and the selection of what covers the most silhouette per triangle.
+//! thin or flat, the mesh's own flat regions as surface pieces, and the selection of what covers
+//! the most silhouette per triangle.
 
 pub mod boxes;
 pub mod distance;
@@ -11,10 +12,12 @@ pub mod quads;
 pub mod rectangle;
 pub mod refine;
 pub mod select;
+pub mod surface_pieces;
 
 use crate::mesh::Mesh;
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
+pub use surface_pieces::SurfacePiece;
 
 /// The kinds of occluder pieces (`cook.shapes`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -26,6 +29,8 @@ pub enum Shape {
     Quads,
     /// Rectangles on flat parts of the surface itself.
     Patches,
+    /// Flat regions of the surface itself, outlines triangulated again.
+    Surface,
 }
 
 /// A double-sided rectangle: an in-solid quad or an on-surface patch.
@@ -48,23 +53,51 @@ impl Panel {
     }
 }
 
-/// A cooked occluder: the watertight union of the chosen boxes, and double-sided panels.
+/// A cooked occluder: the watertight union of the chosen boxes, double-sided panels, and surface
+/// pieces (double-sided, but for closed parts chosen whole, which face out with the solid).
 #[derive(Clone, Debug, Default)]
 pub struct Occluder {
     pub solid: Mesh,
     pub panels: Vec<Panel>,
+    pub pieces: Vec<SurfacePiece>,
 }
 
 impl Occluder {
     /// Everything as one mesh, as a depth test sees it.
     pub fn mesh(&self) -> Mesh {
-        let mut mesh = self.solid.clone();
-        mesh.append(&panel_mesh(&self.panels));
+        let mut mesh = self.single_sided();
+        mesh.append(&self.double_sided());
         mesh
     }
 
+    /// The solid and the surface pieces of closed parts chosen whole: the part drawn facing out.
+    pub fn single_sided(&self) -> Mesh {
+        let mut mesh = self.solid.clone();
+        mesh.append(&self.pieces_mesh(false));
+        mesh
+    }
+
+    /// The panels and the other surface pieces: the part drawn double-sided.
+    pub fn double_sided(&self) -> Mesh {
+        let mut mesh = panel_mesh(&self.panels);
+        mesh.append(&self.pieces_mesh(true));
+        mesh
+    }
+
+    fn pieces_mesh(&self, double_sided: bool) -> Mesh {
+        let pieces: Vec<SurfacePiece> = self
+            .pieces
+            .iter()
+            .filter(|p| p.double_sided == double_sided)
+            .cloned()
+            .collect();
+        surface_pieces::pieces_mesh(&pieces)
+    }
+
     pub fn triangles(&self) -> usize {
-        self.solid.triangles.len() + 2 * self.panels.len()
+        self.solid.triangles.len()
+            + 2 * self.panels.len()
+            + self.pieces.iter().map(|p| p.triangles.len()).sum::<usize>()
     }
 }
 

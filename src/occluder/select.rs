@@ -1,8 +1,9 @@
-//! Choosing pieces by what they add to the silhouette, not by volume: a box or panel enters only
-//! when it covers enough pixels of the original's silhouette that nothing chosen covers yet, and
-//! the piece that adds the most pixels per triangle of the occluder goes first.
+//! Choosing pieces by what they add to the silhouette, not by volume: a box, panel or surface
+//! piece enters only when it covers enough pixels of the original's silhouette that nothing
+//! chosen covers yet, and the piece that adds the most pixels per triangle of the occluder goes
+//! first.
 
-use super::{Panel, WorldBox, merge::merge, panel_mesh};
+use super::{WorldBox, merge::merge};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::raster::coverage_mask;
 use crate::mesh::Mesh;
@@ -19,22 +20,26 @@ const PRUNE_ROUNDS: usize = 4;
 pub struct Selection {
     /// Indices into the candidate boxes, in the order chosen.
     pub boxes: Vec<usize>,
-    /// Indices into the candidate panels, in the order chosen.
-    pub panels: Vec<usize>,
+    /// Indices into the candidate sheets, in the order chosen.
+    pub sheets: Vec<usize>,
     /// Silhouette share each chosen piece added, in the order chosen.
     pub gains: Vec<f64>,
-    /// The merged union of the chosen boxes. With two triangles per panel, it stays within the
-    /// triangle budget.
+    /// Silhouette share the chosen pieces cover together.
+    pub covered: f64,
+    /// The merged union of the chosen boxes. With the chosen sheets' triangles, it stays within
+    /// the triangle budget.
     pub solid: Mesh,
 }
 
-/// Candidates are the boxes, then the panels: index `i` is a box below `boxes.len()`.
-pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: usize, min_gain: f64) -> Selection {
-    if boxes.is_empty() && panels.is_empty() {
+/// Candidates are the boxes, then the sheets (double-sided pieces: panels and surface pieces,
+/// each costing its triangles): index `i` is a box below `boxes.len()`.
+pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: usize, min_gain: f64) -> Selection {
+    if boxes.is_empty() && sheets.is_empty() {
         return Selection {
             boxes: Vec::new(),
-            panels: Vec::new(),
+            sheets: Vec::new(),
             gains: Vec::new(),
+            covered: 0.0,
             solid: Mesh::default(),
         };
     }
@@ -48,8 +53,9 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: 
     let shapes: Vec<Mesh> = boxes
         .iter()
         .map(|b| merge(std::slice::from_ref(b)))
-        .chain(panels.iter().map(|p| panel_mesh(std::slice::from_ref(p))))
+        .chain(sheets.iter().cloned())
         .collect();
+    let costs: Vec<usize> = shapes.iter().map(|s| s.triangles.len()).collect();
     let words: usize = silhouettes.iter().map(Vec::len).sum();
     // masks[candidate]: the silhouette pixels it covers, one bit each, all views end to end,
     // as its nonzero words: a piece covers a small part of the silhouette.
@@ -73,6 +79,7 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: 
     let mut state = State {
         boxes,
         masks: &masks,
+        costs: &costs,
         words,
         threshold: (min_gain * total as f64).max(1.0),
         max_triangles,
@@ -86,9 +93,11 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: 
         }
     }
     let total = total.max(1) as f64;
+    let covered = state.covered().iter().map(|w| f64::from(w.count_ones())).sum::<f64>() / total;
     Selection {
+        covered,
         boxes: state.chosen.iter().filter(|c| c.0 < boxes.len()).map(|c| c.0).collect(),
-        panels: state
+        sheets: state
             .chosen
             .iter()
             .filter(|c| c.0 >= boxes.len())
@@ -102,10 +111,12 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], panels: &[Panel], max_triangles: 
 /// The nonzero words of a bitmask: (word index, bits).
 type SparseMask = Vec<(u32, u64)>;
 
-/// The greedy selection as it goes: candidates are the boxes, then the panels.
+/// The greedy selection as it goes: candidates are the boxes, then the sheets.
 struct State<'a> {
     boxes: &'a [WorldBox],
     masks: &'a [SparseMask],
+    /// Triangles of each candidate alone.
+    costs: &'a [usize],
     /// Words of a dense mask.
     words: usize,
     /// Fewest new silhouette pixels that earn a piece its place.
@@ -119,7 +130,13 @@ struct State<'a> {
 
 impl State<'_> {
     fn triangles(&self) -> usize {
-        self.solid.triangles.len() + 2 * self.chosen.iter().filter(|c| c.0 >= self.boxes.len()).count()
+        self.solid.triangles.len()
+            + self
+                .chosen
+                .iter()
+                .filter(|c| c.0 >= self.boxes.len())
+                .map(|c| self.costs[c.0])
+                .sum::<usize>()
     }
 
     fn merged_with(&self, extra: Option<usize>) -> Mesh {
@@ -161,14 +178,14 @@ impl State<'_> {
                 .collect();
             ranked.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
             let used = self.triangles();
-            // A panel costs its two triangles. The merge decides what a box really costs:
-            // touching boxes share faces, and T-junctions add vertices; price the best few by
-            // merging them in.
-            let priced_panels = ranked
+            // A sheet costs its triangles. The merge decides what a box really costs: touching
+            // boxes share faces, and T-junctions add vertices; price the best few by merging
+            // them in.
+            let priced_sheets = ranked
                 .iter()
                 .filter(|&&(i, _)| i >= self.boxes.len())
-                .filter(|_| used + 2 <= self.max_triangles)
-                .map(|&(i, g)| (i, g, g as f64 / 2.0, None));
+                .filter(|&&(i, _)| used + self.costs[i] <= self.max_triangles)
+                .map(|&(i, g)| (i, g, g as f64 / self.costs[i].max(1) as f64, None));
             let priced_boxes = ranked
                 .iter()
                 .filter(|&&(i, _)| i < self.boxes.len())
@@ -178,7 +195,7 @@ impl State<'_> {
                     let added = solid.triangles.len().saturating_sub(self.solid.triangles.len());
                     (used + added <= self.max_triangles).then(|| (i, g, g as f64 / added.max(1) as f64, Some(solid)))
                 });
-            let best = priced_panels
+            let best = priced_sheets
                 .chain(priced_boxes)
                 .max_by(|a, b| a.2.total_cmp(&b.2).then(b.0.cmp(&a.0)));
             let Some((i, pixels, _, solid)) = best else {

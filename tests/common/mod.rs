@@ -8,6 +8,7 @@ use glam::Vec3;
 use occluder_cook::config::{self, Settings};
 use occluder_cook::cook::{Cooked, cook};
 use occluder_cook::mesh::{IngestStats, Mesh};
+use occluder_cook::occluder::Shape;
 use std::path::PathBuf;
 
 /// An axis-aligned cube as 12 outward-facing triangles; `skip` names faces to leave out
@@ -77,6 +78,16 @@ pub fn defaults() -> Settings {
 /// Cooks a synthetic mesh with evaluation at the default settings.
 pub fn cook_evaluated(mesh: Mesh) -> Cooked {
     cook(mesh, IngestStats::default(), 0.0, &defaults(), true).expect("cooks")
+}
+
+/// The pieces the cook had before surface pieces: boxes, quads and patches.
+pub const VOXEL_AND_PANEL_SHAPES: [Shape; 3] = [Shape::Boxes, Shape::Quads, Shape::Patches];
+
+/// [`cook_evaluated`] with only the kinds of piece in `shapes`.
+pub fn cook_evaluated_with(mesh: Mesh, shapes: &[Shape]) -> Cooked {
+    let mut settings = defaults();
+    settings.cook.shapes = shapes.to_vec();
+    cook(mesh, IngestStats::default(), 0.0, &settings, true).expect("cooks")
 }
 
 /// The shared corpus of meshes, or None (with a message saying so) when it is absent; under CI

@@ -171,7 +171,7 @@ async function showResult(job) {
   if (job.kind === "mesh") {
     figure(figures, "triangles in", report.input.triangles);
     figure(figures, "triangles out", report.occluder.triangles);
-    figure(figures, "pieces", `${report.occluder.boxes} boxes, ${report.occluder.quads} quads, ${report.occluder.patches} patches`);
+    figure(figures, "pieces", `${report.occluder.boxes} boxes, ${report.occluder.quads} quads, ${report.occluder.patches} patches, ${report.occluder.surface_pieces ?? 0} surface pieces`);
     if (report.quality) {
       figure(figures, "coverage", (report.quality.coverage * 100).toFixed(1) + "%");
       figure(figures, "false pixels", report.quality.false_pixels);

@@ -1,0 +1,366 @@
+//! Surface pieces: the mesh's own triangles, grouped into connected flat regions, each region's
+//! outline triangulated again with as few triangles as it takes (a constrained Delaunay
+//! triangulation of the outline's vertices, by spade). A piece lies on the surface, so it hides
+//! exactly what that part of the surface hides. Pieces are drawn double-sided, but for a closed
+//! part chosen whole, which faces out with the solid.
+
+use crate::mesh::Mesh;
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+use serde::Serialize;
+use spade::{ConstrainedDelaunayTriangulation, Point2, Triangulation};
+use std::collections::HashMap;
+
+/// One flat region of the surface, as triangles.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SurfacePiece {
+    pub triangles: Vec<[[f64; 3]; 3]>,
+    /// In square world units.
+    pub area: f64,
+    /// Triangles of the mesh it replaces.
+    pub source_triangles: usize,
+    /// Whether it is drawn from both sides: where its part of the mesh is open, and wherever its
+    /// part is not chosen whole (the faces chosen may cover a view's silhouette from behind).
+    pub double_sided: bool,
+}
+
+impl SurfacePiece {
+    pub fn mesh(&self) -> Mesh {
+        pieces_mesh(std::slice::from_ref(self))
+    }
+}
+
+/// Pieces as one triangle mesh.
+pub fn pieces_mesh(pieces: &[SurfacePiece]) -> Mesh {
+    let corners: Vec<glam::Vec3> = pieces
+        .iter()
+        .flat_map(|p| p.triangles.iter().flatten())
+        .map(|c| DVec3::from_array(*c).as_vec3())
+        .collect();
+    Mesh {
+        triangles: (0..corners.len() as u32 / 3)
+            .map(|t| [3 * t, 3 * t + 1, 3 * t + 2])
+            .collect(),
+        positions: corners,
+    }
+}
+
+/// Every flat region of the mesh as a piece, largest first; `open_triangles` marks the triangles
+/// of open parts. Triangles join a region when their corners lie within `tolerance` of its first
+/// triangle's plane and they face the same way, so that a piece never leaves the surface by more
+/// than twice that.
+pub fn find(mesh: &Mesh, open_triangles: &[bool], tolerance: f64) -> Vec<SurfacePiece> {
+    let regions = flat_regions(mesh, tolerance);
+    let mut pieces: Vec<SurfacePiece> = regions
+        .par_iter()
+        .map(|r| SurfacePiece {
+            double_sided: open_triangles[r[0]],
+            ..piece_of(mesh, r, tolerance)
+        })
+        .collect();
+    pieces.sort_by(|a, b| b.area.total_cmp(&a.area));
+    pieces
+}
+
+fn normal(mesh: &Mesh, t: usize) -> Option<DVec3> {
+    let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+    (b - a).cross(c - a).try_normalize()
+}
+
+/// Connected regions of triangles that share edges and lie in one plane, each listed from its
+/// first triangle; degenerate triangles join none.
+fn flat_regions(mesh: &Mesh, tolerance: f64) -> Vec<Vec<usize>> {
+    let mut by_edge: HashMap<(u32, u32), Vec<u32>> = HashMap::with_capacity(mesh.triangles.len() * 3 / 2);
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            by_edge.entry((a.min(b), a.max(b))).or_default().push(t as u32);
+        }
+    }
+    let normals: Vec<Option<DVec3>> = (0..mesh.triangles.len()).map(|t| normal(mesh, t)).collect();
+    let mut region_of = vec![false; mesh.triangles.len()];
+    let mut regions = Vec::new();
+    for seed in 0..mesh.triangles.len() {
+        let Some(n) = normals[seed] else { continue };
+        if region_of[seed] {
+            continue;
+        }
+        let offset = n.dot(mesh.positions[mesh.triangles[seed][0] as usize].as_dvec3());
+        let in_plane = |t: usize| {
+            normals[t].is_some_and(|m| m.dot(n) > 0.0)
+                && mesh.triangles[t]
+                    .iter()
+                    .all(|&v| (n.dot(mesh.positions[v as usize].as_dvec3()) - offset).abs() <= tolerance)
+        };
+        region_of[seed] = true;
+        let mut region = vec![seed];
+        let mut next = 0;
+        while next < region.len() {
+            let tri = mesh.triangles[region[next]];
+            next += 1;
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                for &u in &by_edge[&(a.min(b), a.max(b))] {
+                    let u = u as usize;
+                    if !region_of[u] && in_plane(u) {
+                        region_of[u] = true;
+                        region.push(u);
+                    }
+                }
+            }
+        }
+        regions.push(region);
+    }
+    regions
+}
+
+/// The region as one piece: its outline triangulated again where that takes fewer triangles,
+/// else its own triangles.
+fn piece_of(mesh: &Mesh, region: &[usize], tolerance: f64) -> SurfacePiece {
+    let area: f64 = region
+        .iter()
+        .map(|&t| {
+            let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+            0.5 * (b - a).cross(c - a).length()
+        })
+        .sum();
+    let own = || -> Vec<[[f64; 3]; 3]> {
+        region
+            .iter()
+            .map(|&t| mesh.corners(t).map(|p| p.as_dvec3().to_array()))
+            .collect()
+    };
+    let triangles = match region.len() {
+        1 => own(),
+        _ => retriangulate(mesh, region, tolerance)
+            .filter(|t| t.len() < region.len())
+            .unwrap_or_else(own),
+    };
+    SurfacePiece {
+        triangles,
+        area,
+        source_triangles: region.len(),
+        double_sided: true,
+    }
+}
+
+/// The region's outline, triangulated with a constrained Delaunay triangulation of its vertices;
+/// None where it cannot be done exactly (crossing or overlapping edges, corners that meet in the
+/// plane), so that a piece never covers what the region does not.
+fn retriangulate(mesh: &Mesh, region: &[usize], tolerance: f64) -> Option<Vec<[[f64; 3]; 3]>> {
+    let frame = Frame::of(mesh, region[0]);
+    let flat = |v: u32| frame.flat(mesh.positions[v as usize].as_dvec3());
+    let mut outline = Outline::of(mesh, region);
+    // Straightening only drops corners that lie on a line to well within the tolerance.
+    outline.straighten(&flat, tolerance * 1e-3);
+    let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> = ConstrainedDelaunayTriangulation::new();
+    let mut vertex_of_handle: HashMap<usize, u32> = HashMap::new();
+    let mut handle_of_vertex: HashMap<u32, spade::handles::FixedVertexHandle> = HashMap::new();
+    for &v in outline.neighbours.keys() {
+        let p = flat(v);
+        let handle = cdt.insert(Point2::new(p.x, p.y)).ok()?;
+        if vertex_of_handle.insert(handle.index(), v).is_some() {
+            return None;
+        }
+        handle_of_vertex.insert(v, handle);
+    }
+    for (a, b) in outline.edges() {
+        let (ha, hb) = (handle_of_vertex[&a], handle_of_vertex[&b]);
+        if !cdt.can_add_constraint(ha, hb) {
+            return None;
+        }
+        cdt.add_constraint(ha, hb);
+    }
+    let triangles2d: Vec<[DVec2; 3]> = region.iter().map(|&t| mesh.triangles[t].map(flat)).collect();
+    let mut kept = Vec::new();
+    let mut kept_area = 0.0;
+    for face in cdt.inner_faces() {
+        let corners = face.vertices().map(|v| vertex_of_handle[&v.fix().index()]);
+        let q = corners.map(flat);
+        let centroid = (q[0] + q[1] + q[2]) / 3.0;
+        if triangles2d.iter().any(|t| contains(t, centroid)) {
+            kept_area += cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0;
+            kept.push(corners.map(|v| mesh.positions[v as usize].as_dvec3().to_array()));
+        }
+    }
+    // Every face lies wholly inside or outside when the whole outline is in the triangulation:
+    // then the kept area is the region's.
+    let region_area: f64 = triangles2d
+        .iter()
+        .map(|q| cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0)
+        .sum();
+    ((kept_area - region_area).abs() <= 1e-9 * region_area.max(f64::MIN_POSITIVE)).then_some(kept)
+}
+
+fn cross(a: DVec2, b: DVec2) -> f64 {
+    a.x * b.y - a.y * b.x
+}
+
+fn contains(t: &[DVec2; 3], p: DVec2) -> bool {
+    let area = cross(t[1] - t[0], t[2] - t[0]);
+    (0..3).all(|k| cross(t[(k + 1) % 3] - t[k], p - t[k]) * area.signum() >= 0.0)
+}
+
+/// Coordinates in a triangle's plane, from its first corner.
+struct Frame {
+    origin: DVec3,
+    e1: DVec3,
+    e2: DVec3,
+}
+
+impl Frame {
+    fn of(mesh: &Mesh, t: usize) -> Frame {
+        let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+        let n = (b - a).cross(c - a).normalize();
+        let e1 = (b - a).normalize();
+        Frame {
+            origin: a,
+            e1,
+            e2: n.cross(e1),
+        }
+    }
+
+    fn flat(&self, p: DVec3) -> DVec2 {
+        let d = p - self.origin;
+        DVec2::new(d.dot(self.e1), d.dot(self.e2))
+    }
+}
+
+/// The edges that only one triangle of a region uses, as each corner's neighbours along them.
+struct Outline {
+    neighbours: HashMap<u32, Vec<u32>>,
+}
+
+impl Outline {
+    fn of(mesh: &Mesh, region: &[usize]) -> Outline {
+        let mut uses: HashMap<(u32, u32), u32> = HashMap::new();
+        for &t in region {
+            let tri = mesh.triangles[t];
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                *uses.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+        let mut neighbours: HashMap<u32, Vec<u32>> = HashMap::new();
+        for (&(a, b), _) in uses.iter().filter(|(_, n)| **n == 1) {
+            neighbours.entry(a).or_default().push(b);
+            neighbours.entry(b).or_default().push(a);
+        }
+        Outline { neighbours }
+    }
+
+    /// Each edge once.
+    fn edges(&self) -> Vec<(u32, u32)> {
+        let mut edges: Vec<(u32, u32)> = self
+            .neighbours
+            .iter()
+            .flat_map(|(&a, ns)| ns.iter().filter(move |&&b| a < b).map(move |&b| (a, b)))
+            .collect();
+        edges.sort_unstable();
+        edges
+    }
+
+    /// Drops corners where the outline runs straight on (within `straight` of the line between
+    /// its neighbours, and between them), joining the neighbours.
+    fn straighten(&mut self, flat: &impl Fn(u32) -> DVec2, straight: f64) {
+        let mut corners: Vec<u32> = self.neighbours.keys().copied().collect();
+        corners.sort_unstable();
+        for v in corners {
+            let [p, q] = match self.neighbours[&v][..] {
+                [p, q] => [p, q],
+                _ => continue,
+            };
+            if self.neighbours[&p].contains(&q) {
+                continue;
+            }
+            let (a, b, c) = (flat(p), flat(v), flat(q));
+            let along = c - a;
+            let length = along.length();
+            let t = (b - a).dot(along);
+            if length == 0.0 || t <= 0.0 || t >= length * length || cross(along, b - a).abs() > straight * length {
+                continue;
+            }
+            self.neighbours.remove(&v);
+            for (from, to) in [(p, q), (q, p)] {
+                let ns = self.neighbours.get_mut(&from).expect("a neighbour is a corner");
+                let slot = ns.iter().position(|&n| n == v).expect("neighbours both ways");
+                ns[slot] = to;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// An n×n grid of squares, two triangles each, on z = 0.
+    fn grid(n: u32) -> Mesh {
+        let mut mesh = Mesh::default();
+        for y in 0..=n {
+            for x in 0..=n {
+                mesh.positions.push(Vec3::new(x as f32, y as f32, 0.0));
+            }
+        }
+        let at = |x: u32, y: u32| y * (n + 1) + x;
+        for y in 0..n {
+            for x in 0..n {
+                mesh.triangles.push([at(x, y), at(x + 1, y), at(x + 1, y + 1)]);
+                mesh.triangles.push([at(x, y), at(x + 1, y + 1), at(x, y + 1)]);
+            }
+        }
+        mesh
+    }
+
+    #[test]
+    fn a_tessellated_square_becomes_two_triangles_of_the_same_area() {
+        let pieces = find(&grid(8), &[true; 128], 1e-6);
+        assert_eq!(pieces.len(), 1);
+        assert_eq!(pieces[0].source_triangles, 128);
+        assert_eq!(pieces[0].triangles.len(), 2);
+        assert!((pieces[0].area - 64.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_square_with_a_hole_keeps_its_hole() {
+        let mut mesh = grid(3);
+        // The middle square's two triangles go.
+        mesh.triangles.drain(8..10);
+        let pieces = find(&mesh, &[true; 32], 1e-6);
+        assert_eq!(pieces.len(), 1);
+        let p = &pieces[0];
+        // An outline of 4 corners with a hole of 4: 4 + 4 + 2 - 2 triangles.
+        assert_eq!(p.triangles.len(), 8);
+        let area: f64 = p
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(DVec3::from_array);
+                0.5 * (b - a).cross(c - a).length()
+            })
+            .sum();
+        assert!((area - 8.0).abs() < 1e-9, "{area}");
+        // No triangle covers the hole's centre.
+        let centre = DVec2::new(1.5, 1.5);
+        for t in &p.triangles {
+            let q = t.map(|c| DVec2::new(c[0], c[1]));
+            assert!(!contains(&q, centre), "{t:?}");
+        }
+    }
+
+    #[test]
+    fn a_fold_or_a_step_starts_a_new_region() {
+        let mut mesh = grid(2);
+        // Lift one corner off the plane: the two triangles that use it leave the region.
+        let corner = mesh.positions.len() - 1;
+        mesh.positions[corner].z = 0.5;
+        let pieces = find(&mesh, &[true; 32], 1e-6);
+        assert!(pieces.len() >= 2, "{pieces:?}");
+        let flat = &pieces[0];
+        assert_eq!(flat.source_triangles, 6);
+        for c in flat.triangles.iter().flatten() {
+            assert_eq!(c[2], 0.0);
+        }
+    }
+}

@@ -103,6 +103,9 @@ pub struct CookSettings {
     pub shapes: Vec<Shape>,
     pub quad_grid: usize,
     pub min_patch_area: f64,
+    /// When surface pieces alone cover this share of the silhouette, they are the occluder and
+    /// the voxel stages are skipped.
+    pub surface_enough: f64,
     /// Openings narrower than this, in world units, count as closed (0: none). Left out of
     /// the cache key while 0, so that keys from before it stay valid.
     #[serde(default, skip_serializing_if = "is_zero")]
@@ -282,6 +285,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.min_silhouette_gain", c.min_silhouette_gain, 0.0, 1.0)?;
     check("cook.quad_grid", c.quad_grid as f64, 8.0, 4096.0)?;
     check("cook.min_patch_area", c.min_patch_area, 0.0, 1.0)?;
+    check("cook.surface_enough", c.surface_enough, 0.0, 1.0)?;
     check("cook.smallest_hole", c.smallest_hole, 0.0, 1e12)?;
     check("cook.cpsv_pixels", c.cpsv_pixels as f64, 8.0, 1024.0)?;
     check("cook.cpsv_back_share", c.cpsv_back_share, 0.0, 1.0)?;

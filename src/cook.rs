@@ -34,6 +34,7 @@ pub const STAGES: [&str; 19] = [
     "key",
     "orient",
     "openings",
+    "surface-pieces",
     "device",
     "surface",
     "inside",
@@ -46,7 +47,6 @@ pub const STAGES: [&str; 19] = [
     "quads",
     "exposure-quads",
     "patches",
-    "surface-pieces",
     "select+merge",
     "eval",
 ];
@@ -102,24 +102,121 @@ pub fn cook_with_progress(
     progress: Progress,
 ) -> Result<Cooked, CookError> {
     let cook = &settings.cook;
-    let uses = |shape: Shape| cook.shapes.contains(&shape);
     let mut run = Run::new(ingest_ms, progress);
     let key = run.stage("key", || cache_key(&mesh, cook))?;
     let mut topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
     let input = InputReport::new(&mesh, ingest, &topology);
     let openings = run.close_openings(&mut mesh, &mut topology, cook.smallest_hole)?;
+    // A GPU asked for must be there, even where the surface alone makes the occluder.
+    if cook.device == gpu::DeviceChoice::Gpu {
+        run.open_device(cook.device)?;
+    }
+    let pieces = run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
+        find_surface_pieces(&mesh, &topology)
+    })?;
+    let prepared = Prepared {
+        mesh,
+        topology,
+        key,
+        input,
+        openings,
+    };
+    // Low-poly and flat-shaded art: its own surface may leave the voxel stages nothing to add.
+    let alone = match could_be_enough(&pieces, cook.max_triangles) {
+        false => None,
+        true => Some(run.stage("surface-pieces", || {
+            select_pieces(&prepared.mesh, &[], &[], pieces.clone(), cook)
+        })?)
+        .filter(|(_, chosen)| chosen.covered >= cook.surface_enough),
+    };
+    match alone {
+        Some((occluder, chosen)) => {
+            run.note_surface_alone(chosen.covered, cook.surface_enough);
+            let parts = VoxelParts::skipped(fit_grid(&prepared.mesh, cook.resolution));
+            finish(run, &prepared, parts, (occluder, chosen), settings, with_eval)
+        }
+        None => cook_voxels(run, &prepared, pieces, settings, with_eval),
+    }
+}
+
+/// Least share of the surface's area that the pieces fitting in the budget must hold before
+/// they are tried alone. Double-sided pieces covering a convex surface from every side hold at
+/// least half of it; most meshes below this are curved, and their pieces would cover little.
+const SURFACE_ALONE_AREA: f64 = 0.5;
+
+/// Whether the largest pieces for their triangles that fit in the budget hold enough of the
+/// surface's area to be worth a selection among them alone.
+fn could_be_enough(pieces: &[SurfacePiece], max_triangles: usize) -> bool {
+    let density = |p: &SurfacePiece| p.area / p.triangles.len().max(1) as f64;
+    let mut densest: Vec<&SurfacePiece> = pieces.iter().collect();
+    densest.sort_by(|a, b| density(b).total_cmp(&density(a)));
+    let (mut triangles, mut held) = (0, 0.0);
+    for p in densest {
+        if triangles + p.triangles.len() <= max_triangles {
+            triangles += p.triangles.len();
+            held += p.area;
+        }
+    }
+    let total: f64 = pieces.iter().map(|p| p.area).sum();
+    total > 0.0 && held >= SURFACE_ALONE_AREA * total
+}
+
+/// The mesh ready for the voxel stages, and what the stages before them found for the report.
+struct Prepared {
+    mesh: Mesh,
+    topology: Topology,
+    key: String,
+    input: InputReport,
+    openings: Vec<Opening>,
+}
+
+/// What the voxel stages found, for the report.
+struct VoxelParts {
+    grid: Grid,
+    voxels: VoxelReport,
+    boxes: BoxReport,
+    /// Quads found, then those dropped and cut as they showed through an opening.
+    quads: (usize, [usize; 2]),
+    /// Quads and patches the selection weighed.
+    panels: usize,
+}
+
+impl VoxelParts {
+    /// For a cook whose voxel stages did not run.
+    fn skipped(grid: Grid) -> VoxelParts {
+        VoxelParts {
+            grid,
+            voxels: VoxelReport::default(),
+            boxes: BoxReport::default(),
+            quads: (0, [0, 0]),
+            panels: 0,
+        }
+    }
+}
+
+/// The voxel stages and the selection over everything they found and the surface pieces.
+fn cook_voxels(
+    mut run: Run,
+    prepared: &Prepared,
+    pieces: Vec<SurfacePiece>,
+    settings: &Settings,
+    with_eval: bool,
+) -> Result<Cooked, CookError> {
+    let cook = &settings.cook;
+    let uses = |shape: Shape| cook.shapes.contains(&shape);
+    let (mesh, topology) = (&prepared.mesh, &prepared.topology);
     run.open_device(cook.device)?;
-    let grid = fit_grid(&mesh, cook.resolution);
-    let surface = run.on_device("surface", |gpu| voxel::surface(&mesh, &grid, gpu))?;
+    let grid = fit_grid(mesh, cook.resolution);
+    let surface = run.on_device("surface", |gpu| voxel::surface(mesh, &grid, gpu))?;
     let inside = run.on_device("inside", |gpu| {
-        voxel::classify(cook.inside, &mesh, &topology, &grid, &surface, &cook.cpsv(), gpu)
+        voxel::classify(cook.inside, mesh, topology, &grid, &surface, &cook.cpsv(), gpu)
     })?;
     run.note_undecided(inside.cpsv.as_ref());
     let mut inner = run.stage("inner", || inner_voxels(&inside.solid, &surface))?;
     // Only open meshes can show their inside.
     let open_views = match topology.boundary.is_empty() {
         true => None,
-        false => Some(run.on_device("exposure-render", |gpu| OpenViews::new(&mesh, &topology.boundary, gpu))?),
+        false => Some(run.on_device("exposure-render", |gpu| OpenViews::new(mesh, &topology.boundary, gpu))?),
     };
     let exposed_voxels = match &open_views {
         None => 0,
@@ -129,9 +226,9 @@ pub fn cook_with_progress(
         boxes::expand(&inner, grid.dims, &expansion(cook))
     })?;
     // Refinement and quads both look triangles up through it.
-    let field = run.stage("refine", || WindingField::new(&mesh, &topology.boundary))?;
+    let field = run.stage("refine", || WindingField::new(mesh, &topology.boundary))?;
     let refined = run.stage("refine", || {
-        refine_boxes(&mesh, &grid, &field, &inside.solid, &voxel_boxes, cook.refine)
+        refine_boxes(mesh, &grid, &field, &inside.solid, &voxel_boxes, cook.refine)
     })?;
     // Each candidate with the index of the voxel box it came from.
     let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
@@ -139,45 +236,61 @@ pub fn cook_with_progress(
         Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
     };
     let quads_found = run.kind_stage(uses(Shape::Quads), "quads", || {
-        find_quads(&mesh, &topology, &grid, &field, &inner, cook)
+        find_quads(mesh, topology, &grid, &field, &inner, cook)
     })?;
     let quad_count = quads_found.len();
     let (mut panels, quads_shown) = match &open_views {
         None => (quads_found, [0, 0]),
         Some(views) => run.stage("exposure-quads", || unexposed_quads(views, quads_found))?,
     };
-    panels.extend(run.kind_stage(uses(Shape::Patches), "patches", || find_patches(&mesh, &topology, cook))?);
-    let (occluder, selection) = run.choose(&mesh, &topology, &box_candidates, &panels, cook)?;
+    panels.extend(run.kind_stage(uses(Shape::Patches), "patches", || find_patches(mesh, topology, cook))?);
+    // Selection merges as it goes; its last merge is the solid part of the occluder.
+    let (occluder, chosen) = run.stage("select+merge", || {
+        select_pieces(mesh, &box_candidates, &panels, pieces, cook)
+    })?;
     let inner_count = inner.iter().filter(|&&v| v).count();
     let exposed = [exposed_voxels, voxel_boxes.len() - box_candidates.len(), quads_shown[0]];
     run.note_exposure(open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
     let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
     run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
+    let parts = VoxelParts {
+        voxels: VoxelReport::new(&surface, &inside, inner_count, exposed_voxels),
+        boxes: BoxReport::new(&voxel_boxes, &box_candidates, &box_sources, &chosen.boxes, inner_count),
+        grid,
+        quads: (quad_count, quads_shown),
+        panels: panels.len(),
+    };
+    finish(run, prepared, parts, (occluder, chosen), settings, with_eval)
+}
+
+/// Evaluates the occluder when asked, and writes the report.
+fn finish(
+    mut run: Run,
+    prepared: &Prepared,
+    parts: VoxelParts,
+    (occluder, chosen): (Occluder, Chosen),
+    settings: &Settings,
+    with_eval: bool,
+) -> Result<Cooked, CookError> {
     let quality = with_eval
-        .then(|| run.evaluate(&mesh, &topology, &occluder, settings))
+        .then(|| run.evaluate(&prepared.mesh, &prepared.topology, &occluder, settings))
         .transpose()?;
     let report = Report {
-        voxels: VoxelReport::new(&surface, &inside, inner_count, exposed_voxels),
-        boxes: BoxReport::new(
-            &voxel_boxes,
-            &box_candidates,
-            &box_sources,
-            &selection.boxes,
-            inner_count,
-        ),
+        voxels: parts.voxels,
+        boxes: parts.boxes,
         panels: PanelReport::new(
-            quad_count,
-            quads_shown,
-            panels.len(),
-            selection.piece_candidates,
+            parts.quads.0,
+            parts.quads.1,
+            parts.panels,
+            chosen.piece_candidates,
             &occluder,
         ),
-        occluder: OccluderReport::new(&occluder, selection.boxes.len(), selection.gains),
-        input,
-        openings_closed: openings,
+        occluder: OccluderReport::new(&occluder, chosen.boxes.len(), chosen.gains),
+        input: prepared.input.clone(),
+        openings_closed: prepared.openings.clone(),
         pipeline_version: PIPELINE_VERSION,
-        key,
-        grid,
+        key: prepared.key.clone(),
+        grid: parts.grid,
         device: run.device_name(),
         gpu_stages: run.gpu_stages,
         timings_ms: run.timings,
@@ -325,6 +438,8 @@ fn sheet_triangles(selection: &select::Selection, sheets: &[Mesh]) -> usize {
 struct Chosen {
     boxes: Vec<usize>,
     gains: Vec<f64>,
+    /// Silhouette share covered, at the selection's views.
+    covered: f64,
     /// Surface pieces it weighed.
     piece_candidates: usize,
 }
@@ -359,6 +474,7 @@ fn select_pieces(
         let chosen = Chosen {
             boxes: Vec::new(),
             gains: vec![1.0],
+            covered: 1.0,
             piece_candidates: weighed.len(),
         };
         let occluder = Occluder {
@@ -383,6 +499,7 @@ fn select_pieces(
     let chosen = Chosen {
         boxes: selection.boxes,
         gains: selection.gains,
+        covered: selection.covered,
         piece_candidates: weighed.len(),
     };
     (occluder, chosen)
@@ -396,6 +513,8 @@ struct Run<'a> {
     device_timings: Timings,
     /// The timed device handle, once open.
     gpu: Option<Arc<Gpu>>,
+    /// Whether the device choice was made (a CPU choice leaves `gpu` empty).
+    device_chosen: bool,
     /// The stages that ran on that GPU.
     gpu_stages: Vec<&'static str>,
     /// Why the occluder is empty or smaller than asked, in words.
@@ -409,6 +528,7 @@ impl<'a> Run<'a> {
             timings: Timings(vec![("ingest".into(), ingest_ms)]),
             device_timings: Timings::default(),
             gpu: None,
+            device_chosen: false,
             gpu_stages: Vec::new(),
             notes: Vec::new(),
             progress,
@@ -444,22 +564,6 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Finds the surface pieces and chooses among them and the other candidates. Selection merges
-    /// as it goes; its last merge is the solid part of the occluder.
-    fn choose(
-        &mut self,
-        mesh: &Mesh,
-        topology: &Topology,
-        boxes: &[WorldBox],
-        panels: &[Panel],
-        cook: &CookSettings,
-    ) -> Result<(Occluder, Chosen), CookError> {
-        let pieces = self.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
-            find_surface_pieces(mesh, topology)
-        })?;
-        self.stage("select+merge", || select_pieces(mesh, boxes, panels, pieces, cook))
-    }
-
     /// Runs a stage with a GPU twin on the device when there is one; where the device cannot do
     /// it, on the CPU, with a note saying why.
     fn on_device<T>(
@@ -483,6 +587,10 @@ impl<'a> Run<'a> {
     /// Opens the device `choice` asks for (once a process) and builds the pipelines of the
     /// stages a cook runs there.
     fn open_device(&mut self, choice: gpu::DeviceChoice) -> Result<(), CookError> {
+        if self.device_chosen {
+            return Ok(());
+        }
+        self.device_chosen = true;
         let placement = self.stage("device", || {
             let placement = gpu::for_choice(choice)?;
             if let Some(gpu) = &placement.gpu {
@@ -526,6 +634,14 @@ impl<'a> Run<'a> {
                 count("seam")
             ));
         }
+    }
+
+    fn note_surface_alone(&mut self, covered: f64, enough: f64) {
+        self.notes.push(format!(
+            "the surface pieces alone cover {:.1}% of the silhouette at the selection's views, at least \
+             cook.surface_enough ({enough}): they are the occluder, and the voxel stages did not run",
+            covered * 100.0
+        ));
     }
 
     fn note_undecided(&mut self, cpsv: Option<&CpsvStats>) {

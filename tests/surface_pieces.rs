@@ -133,3 +133,29 @@ fn a_curved_closed_mesh_loses_no_coverage_to_surface_pieces() {
         without.coverage
     );
 }
+
+#[test]
+fn a_mesh_its_own_surface_covers_skips_the_voxel_stages() {
+    let cooked = cook_evaluated(half_cylinder(24, 6, ([8, 16], [2, 4])));
+    let r = &cooked.report;
+    assert!(
+        r.notes.iter().any(|n| n.contains("cook.surface_enough")),
+        "{:?}",
+        r.notes
+    );
+    assert_eq!(r.timings_ms.get("inside"), 0.0);
+    assert_eq!(r.voxels.inner, 0);
+    assert!(r.gpu_stages.is_empty());
+    // Asked for all of the silhouette, the fine shell's pieces fall short: the voxel stages run,
+    // and the occluder is what they and the pieces give together.
+    let mut settings = defaults();
+    settings.cook.surface_enough = 1.0;
+    let shell = half_cylinder(160, 12, ([60, 100], [4, 8]));
+    let cooked = occluder_cook::cook::cook(shell, Default::default(), 0.0, &settings, false).expect("cooks");
+    assert!(cooked.report.timings_ms.get("inside") > 0.0);
+    assert!(!cooked.report.notes.iter().any(|n| n.contains("cook.surface_enough")));
+    // A curved closed mesh's flat regions hold too little of its area to be tried alone.
+    let torus = cook_evaluated(common::torus(1.0, 0.45, 48, 24));
+    assert!(torus.report.timings_ms.get("inside") > 0.0);
+    assert!(torus.report.voxels.inner > 0);
+}

@@ -92,7 +92,7 @@ impl InputReport {
     }
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct VoxelReport {
     pub surface: usize,
     pub solid: usize,
@@ -116,7 +116,7 @@ impl VoxelReport {
     }
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct BoxReport {
     pub candidates: usize,
     /// Candidates rejected because they show through an opening (open meshes only).

@@ -1,7 +1,8 @@
-//! One mesh through the whole pipeline: orient, voxelize, classify, expand boxes, refine,
-//! find quads, patches and surface pieces, select by silhouette, merge, and optionally evaluate.
+//! One mesh through the whole pipeline: orient, find the surface pieces (and stop there when
+//! they alone cover the silhouette), voxelize, classify, expand boxes, refine, find quads and
+//! patches, select by silhouette, merge, and optionally evaluate.
 //!
-//! [`cook_with_progress`] is the list of stages; each is a function from named inputs to a named
+//! [`cook_with_progress`] and [`cook_voxels`] are the list of stages; each is a function from named inputs to a named
 //! output, and [`Run`] times it, reports its progress and, for a stage with a GPU twin, falls
 //! back to the CPU where the device cannot do it.
 

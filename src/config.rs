@@ -103,8 +103,8 @@ pub struct CookSettings {
     pub shapes: Vec<Shape>,
     pub quad_grid: usize,
     pub min_patch_area: f64,
-    /// When surface pieces alone cover this share of the silhouette, they are the occluder and
-    /// the voxel stages are skipped.
+    /// When an open mesh's surface pieces alone cover this share of the silhouette, they are the
+    /// occluder and the voxel stages are skipped.
     pub surface_enough: f64,
     /// Openings narrower than this, in world units, count as closed (0: none). Left out of
     /// the cache key while 0, so that keys from before it stay valid.

@@ -122,8 +122,11 @@ pub fn cook_with_progress(
         input,
         openings,
     };
-    // Low-poly and flat-shaded art: its own surface may leave the voxel stages nothing to add.
-    let alone = match could_be_enough(&pieces, cook.max_triangles) {
+    // Low-poly and flat-shaded open art: its own surface may leave the voxel stages, and their
+    // costly exposure test, nothing to add. A closed mesh has no exposure test, and its in-solid
+    // quads sit behind its surface, where a runtime can cull what touches the wall's far side.
+    let open = !prepared.topology.boundary.is_empty();
+    let alone = match open && could_be_enough(&pieces, cook.max_triangles) {
         false => None,
         true => Some(run.stage("surface-pieces", || {
             select_pieces(&prepared.mesh, &[], &[], pieces.clone(), cook)

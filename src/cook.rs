@@ -2,9 +2,9 @@
 //! they alone cover the silhouette), voxelize, classify, expand boxes, refine, find quads and
 //! patches, select by silhouette, merge, and optionally evaluate.
 //!
-//! [`cook_with_progress`] and [`cook_voxels`] are the list of stages; each is a function from named inputs to a named
-//! output, and [`Run`] times it, reports its progress and, for a stage with a GPU twin, falls
-//! back to the CPU where the device cannot do it.
+//! [`cook_with_progress`] and [`cook_voxels`] are the list of stages; each is a function from
+//! named inputs to a named output, and [`Run`] times it, reports its progress and, for a stage
+//! with a GPU twin, falls back to the CPU where the device cannot do it.
 
 mod report;
 
@@ -129,7 +129,7 @@ pub fn cook_with_progress(
     let alone = match open && could_be_enough(&pieces, cook.max_triangles) {
         false => None,
         true => Some(run.stage("surface-pieces", || {
-            select_pieces(&prepared.mesh, &[], &[], pieces.clone(), cook)
+            select_pieces(&prepared.mesh, &[], &[], &pieces, cook)
         })?)
         .filter(|(_, chosen)| chosen.covered >= cook.surface_enough),
     };
@@ -139,7 +139,7 @@ pub fn cook_with_progress(
             let parts = VoxelParts::skipped(fit_grid(&prepared.mesh, cook.resolution));
             finish(run, &prepared, parts, (occluder, chosen), settings, with_eval)
         }
-        None => cook_voxels(run, &prepared, pieces, settings, with_eval),
+        None => cook_voxels(run, &prepared, &pieces, settings, with_eval),
     }
 }
 
@@ -202,7 +202,7 @@ impl VoxelParts {
 fn cook_voxels(
     mut run: Run,
     prepared: &Prepared,
-    pieces: Vec<SurfacePiece>,
+    pieces: &[SurfacePiece],
     settings: &Settings,
     with_eval: bool,
 ) -> Result<Cooked, CookError> {
@@ -434,10 +434,6 @@ fn find_surface_pieces(mesh: &Mesh, topology: &Topology) -> Vec<SurfacePiece> {
     surface_pieces::find(mesh, &topology.open_triangles, 2e-5 * radius)
 }
 
-fn sheet_triangles(selection: &select::Selection, sheets: &[Mesh]) -> usize {
-    selection.sheets.iter().map(|&i| sheets[i].triangles.len()).sum()
-}
-
 /// What the selection chose, with the occluder built from it.
 struct Chosen {
     boxes: Vec<usize>,
@@ -457,7 +453,7 @@ fn select_pieces(
     mesh: &Mesh,
     boxes: &[WorldBox],
     panels: &[Panel],
-    pieces: Vec<SurfacePiece>,
+    pieces: &[SurfacePiece],
     cook: &CookSettings,
 ) -> (Occluder, Chosen) {
     let (lo, hi) = mesh.bounds();
@@ -472,7 +468,7 @@ fn select_pieces(
     let selection = select::select(mesh, boxes, &sheets, cook.max_triangles, cook.min_silhouette_gain);
     let whole_triangles: usize = pieces.iter().map(|p| p.triangles.len()).sum();
     let missed = 1.0 - selection.covered;
-    let extra = whole_triangles.saturating_sub(selection.solid.triangles.len() + sheet_triangles(&selection, &sheets));
+    let extra = whole_triangles.saturating_sub(selection.triangles);
     let worth_it = missed >= cook.min_silhouette_gain * (extra.max(2) as f64 / 2.0);
     if !pieces.is_empty() && whole_triangles <= cook.max_triangles && worth_it {
         let chosen = Chosen {
@@ -482,7 +478,7 @@ fn select_pieces(
             piece_candidates: weighed.len(),
         };
         let occluder = Occluder {
-            pieces,
+            pieces: pieces.to_vec(),
             ..Occluder::default()
         };
         return (occluder, chosen);

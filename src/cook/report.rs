@@ -206,7 +206,7 @@ impl OccluderReport {
     pub(super) fn new(occluder: &Occluder, boxes: usize, silhouette_gains: Vec<f64>) -> OccluderReport {
         OccluderReport {
             triangles: occluder.triangles(),
-            vertices: occluder.single_sided().positions.len() + occluder.double_sided().positions.len(),
+            vertices: occluder.vertices(),
             boxes,
             quads: occluder.panels.iter().filter(|p| p.shape == Shape::Quads).count(),
             patches: occluder.panels.iter().filter(|p| p.shape == Shape::Patches).count(),

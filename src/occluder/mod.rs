@@ -85,19 +85,20 @@ impl Occluder {
     }
 
     fn pieces_mesh(&self, double_sided: bool) -> Mesh {
-        let pieces: Vec<SurfacePiece> = self
-            .pieces
-            .iter()
-            .filter(|p| p.double_sided == double_sided)
-            .cloned()
-            .collect();
-        surface_pieces::pieces_mesh(&pieces)
+        surface_pieces::pieces_mesh(self.pieces.iter().filter(|p| p.double_sided == double_sided))
     }
 
     pub fn triangles(&self) -> usize {
-        self.solid.triangles.len()
-            + 2 * self.panels.len()
-            + self.pieces.iter().map(|p| p.triangles.len()).sum::<usize>()
+        self.solid.triangles.len() + 2 * self.panels.len() + self.piece_triangles()
+    }
+
+    /// Vertices of its GLB: the solid's, four a panel and three a surface piece's triangle.
+    pub fn vertices(&self) -> usize {
+        self.solid.positions.len() + 4 * self.panels.len() + 3 * self.piece_triangles()
+    }
+
+    fn piece_triangles(&self) -> usize {
+        self.pieces.iter().map(|p| p.triangles.len()).sum()
     }
 }
 

@@ -26,6 +26,8 @@ pub struct Selection {
     pub gains: Vec<f64>,
     /// Silhouette share the chosen pieces cover together.
     pub covered: f64,
+    /// Triangles of the merged solid and the chosen sheets.
+    pub triangles: usize,
     /// The merged union of the chosen boxes. With the chosen sheets' triangles, it stays within
     /// the triangle budget.
     pub solid: Mesh,
@@ -40,6 +42,7 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
             sheets: Vec::new(),
             gains: Vec::new(),
             covered: 0.0,
+            triangles: 0,
             solid: Mesh::default(),
         };
     }
@@ -50,11 +53,8 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
         .collect();
     let silhouettes: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh)).collect();
     let total: u64 = silhouettes.iter().flatten().map(|w| u64::from(w.count_ones())).sum();
-    let shapes: Vec<Mesh> = boxes
-        .iter()
-        .map(|b| merge(std::slice::from_ref(b)))
-        .chain(sheets.iter().cloned())
-        .collect();
+    let box_shapes: Vec<Mesh> = boxes.iter().map(|b| merge(std::slice::from_ref(b))).collect();
+    let shapes: Vec<&Mesh> = box_shapes.iter().chain(sheets).collect();
     let costs: Vec<usize> = shapes.iter().map(|s| s.triangles.len()).collect();
     let words: usize = silhouettes.iter().map(Vec::len).sum();
     // masks[candidate]: the silhouette pixels it covers, one bit each, all views end to end,
@@ -96,6 +96,7 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
     let covered = state.covered().iter().map(|w| f64::from(w.count_ones())).sum::<f64>() / total;
     Selection {
         covered,
+        triangles: state.triangles(),
         boxes: state.chosen.iter().filter(|c| c.0 < boxes.len()).map(|c| c.0).collect(),
         sheets: state
             .chosen

@@ -26,14 +26,14 @@ pub struct SurfacePiece {
 
 impl SurfacePiece {
     pub fn mesh(&self) -> Mesh {
-        pieces_mesh(std::slice::from_ref(self))
+        pieces_mesh([self])
     }
 }
 
 /// Pieces as one triangle mesh.
-pub fn pieces_mesh(pieces: &[SurfacePiece]) -> Mesh {
+pub fn pieces_mesh<'a>(pieces: impl IntoIterator<Item = &'a SurfacePiece>) -> Mesh {
     let corners: Vec<glam::Vec3> = pieces
-        .iter()
+        .into_iter()
         .flat_map(|p| p.triangles.iter().flatten())
         .map(|c| DVec3::from_array(*c).as_vec3())
         .collect();
@@ -53,10 +53,7 @@ pub fn find(mesh: &Mesh, open_triangles: &[bool], tolerance: f64) -> Vec<Surface
     let regions = flat_regions(mesh, tolerance);
     let mut pieces: Vec<SurfacePiece> = regions
         .par_iter()
-        .map(|r| SurfacePiece {
-            double_sided: open_triangles[r[0]],
-            ..piece_of(mesh, r, tolerance)
-        })
+        .map(|r| piece_of(mesh, r, open_triangles[r[0]], tolerance))
         .collect();
     pieces.sort_by(|a, b| b.area.total_cmp(&a.area));
     pieces
@@ -116,7 +113,7 @@ fn flat_regions(mesh: &Mesh, tolerance: f64) -> Vec<Vec<usize>> {
 
 /// The region as one piece: its outline triangulated again where that takes fewer triangles,
 /// else its own triangles.
-fn piece_of(mesh: &Mesh, region: &[usize], tolerance: f64) -> SurfacePiece {
+fn piece_of(mesh: &Mesh, region: &[usize], double_sided: bool, tolerance: f64) -> SurfacePiece {
     let area: f64 = region
         .iter()
         .map(|&t| {
@@ -140,7 +137,7 @@ fn piece_of(mesh: &Mesh, region: &[usize], tolerance: f64) -> SurfacePiece {
         triangles,
         area,
         source_triangles: region.len(),
-        double_sided: true,
+        double_sided,
     }
 }
 

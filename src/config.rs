@@ -28,6 +28,16 @@ pub struct LevelSettings {
     pub batch_max_extent: f64,
     /// Cameras of the cull test a bake runs on its own occluder (0: none).
     pub cull_cameras: usize,
+    /// A player's eye above the floor, in the level's units: where a soup's cook looks from.
+    pub eye_height: f64,
+    /// A soup's voxel size in the level's units (0: its longest side / 1024).
+    pub voxel_size: f64,
+    /// A soup's selection cells' side in the level's units (0: its longest side / 8).
+    pub soup_cell_size: f64,
+    /// The share of the map's triangles a soup's occluder may use.
+    pub soup_triangle_share: f64,
+    /// The most triangles one cell of a soup's occluder may use.
+    pub soup_cell_triangles: usize,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -301,6 +311,16 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     )?;
     check("level.batch_max_extent", s.level.batch_max_extent, 1e-6, 1e12)?;
     check("level.cull_cameras", s.level.cull_cameras as f64, 0.0, 256.0)?;
+    check("level.eye_height", s.level.eye_height, 1e-6, 1e9)?;
+    check("level.voxel_size", s.level.voxel_size, 0.0, 1e12)?;
+    check("level.soup_cell_size", s.level.soup_cell_size, 0.0, 1e12)?;
+    check("level.soup_triangle_share", s.level.soup_triangle_share, 1e-4, 1.0)?;
+    check(
+        "level.soup_cell_triangles",
+        s.level.soup_cell_triangles as f64,
+        1.0,
+        1e9,
+    )?;
     let v = &s.service;
     check("service.workers", v.workers as f64, 1.0, 256.0)?;
     check("service.max_body_bytes", v.max_body_bytes as f64, 1024.0, 4e9)?;

@@ -4,12 +4,13 @@
 
 mod common;
 use common::{concat, cuboid, torus};
-use glam::Vec3;
+use glam::{IVec3, Vec3};
 use occluder_cook::geom::camera::View;
 use occluder_cook::geom::raster::depth_image;
 use occluder_cook::gpu::{self, Gpu, GpuError};
 use occluder_cook::mesh::{IngestLimits, Mesh, load_file, topology::orient_closed_components};
 use occluder_cook::occluder::exposure::OpenViews;
+use occluder_cook::voxel::bricks::BrickGrid;
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
 use std::sync::Arc;
 
@@ -491,4 +492,55 @@ fn exposed_voxels_on_the_gpu_match_their_cpu_twin() {
         let kept_on_gpu_only = on_gpu.iter().zip(&on_cpu).filter(|&(&g, &c)| g && !c).count();
         assert_eq!(kept_on_gpu_only, 0, "{name}: the GPU keeps exposed voxels");
     }
+}
+
+/// Every surface voxel of a bricked grid with its facing bits, in order.
+fn brick_voxels(grid: &BrickGrid) -> Vec<(IVec3, u8)> {
+    let mut voxels: Vec<(IVec3, u8)> = grid.surface_voxels().collect();
+    voxels.sort_by_key(|&(v, _)| (v.x, v.y, v.z));
+    voxels
+}
+
+#[test]
+fn bricks_on_the_gpu_match_their_cpu_twin() {
+    let Some(gpu) = device() else { return };
+    let slanted = Mesh {
+        positions: vec![
+            Vec3::new(0.3, 0.2, 0.1),
+            Vec3::new(17.5, 3.1, 9.0),
+            Vec3::new(4.0, 15.2, 12.7),
+        ],
+        triangles: vec![[0, 1, 2]],
+    };
+    let rooms = concat(&[
+        cuboid(Vec3::ZERO, Vec3::new(20.0, 0.2, 12.0), &[]),
+        cuboid(Vec3::new(9.0, 0.0, 0.0), Vec3::new(11.0, 3.0, 4.0), &[]),
+        torus(1.0, 0.4, 48, 24),
+    ]);
+    let mut maps = vec![
+        ("slanted triangle".to_string(), slanted, 0.37),
+        ("rooms".into(), rooms, 0.05),
+    ];
+    if let Some(levels) = common::levels() {
+        let path = levels.join("soups/curvedm.obj");
+        let (map, _) = load_file(&path, &IngestLimits::default()).expect("soup map loads");
+        let (lo, hi) = map.bounds();
+        maps.push((
+            "soups/curvedm.obj".into(),
+            map,
+            f64::from((hi - lo).max_element()) / 512.0,
+        ));
+    }
+    for (name, map, voxel_size) in &maps {
+        let on_cpu = BrickGrid::voxelize(map, *voxel_size, None).expect("CPU bricks");
+        let on_gpu = BrickGrid::voxelize(map, *voxel_size, Some(&gpu)).expect("GPU bricks");
+        assert_eq!(on_cpu.stats(), on_gpu.stats(), "{name}");
+        assert!(brick_voxels(&on_cpu) == brick_voxels(&on_gpu), "{name}: voxels differ");
+        eprintln!("{name}: {:?}", on_cpu.stats());
+    }
+    // A binding of 128 bricks' voxels: the same grid, in chunks.
+    let (name, map, voxel_size) = &maps[1];
+    let chunked = BrickGrid::voxelize(map, *voxel_size, Some(&gpu.with_max_binding(128 * 512))).expect("chunks");
+    let whole = BrickGrid::voxelize(map, *voxel_size, None).expect("CPU bricks");
+    assert!(brick_voxels(&chunked) == brick_voxels(&whole), "{name} in chunks");
 }

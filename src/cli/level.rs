@@ -21,6 +21,12 @@ pub struct LevelArgs {
     /// the culled instances seen through the walls.
     #[arg(long, value_name = "PNG", conflicts_with = "server")]
     preview: Option<PathBuf>,
+    /// Cook the level as one soup: every instance placed into one map, its flat surface pieces
+    /// chosen cell by cell (the level.eye_height and level.soup_* settings). Without it, a level
+    /// read from one file whose parts overlap across the map, or one large mesh, is cooked as a
+    /// soup too, with a note that says so.
+    #[arg(long, conflicts_with_all = ["server", "preview"])]
+    soup: bool,
     /// service.data_dir: the cache.
     #[arg(long, conflicts_with = "server")]
     data_dir: Option<PathBuf>,
@@ -50,7 +56,17 @@ pub fn run(args: LevelArgs) -> Result<()> {
     };
     let never = |_: &str, _: f64| Ok(());
     let runtime = tokio::runtime::Runtime::new()?;
-    let baked = runtime.block_on(level::bake(&level, &settings, &store, &progress, &never))?;
+    let soup = match args.soup {
+        true => Some("asked for (--soup)".to_string()),
+        false => level::soup::soup_reason(&level, &settings.level),
+    };
+    if let (Some(why), Some(_)) = (&soup, &args.preview) {
+        anyhow::bail!("this level cooks as a soup ({why}): --preview draws instances, and a soup has none");
+    }
+    let baked = match &soup {
+        Some(why) => runtime.block_on(level::soup::bake_soup(&level, &settings, &store, why))?,
+        None => runtime.block_on(level::bake(&level, &settings, &store, &progress, &never))?,
+    };
     bar.finish_and_clear();
     write(&args.output, &baked.glb)?;
     if let Some(path) = &args.preview {
@@ -73,11 +89,25 @@ pub fn run(args: LevelArgs) -> Result<()> {
         let sheet = level::preview::sheet(&level, &meshes, &occluder, &groups, &caption).map_err(anyhow::Error::msg)?;
         write(path, &occluder_cook::eval::preview::png(&sheet))?;
     }
-    write_outputs(
-        &args,
-        &serde_json::to_value(&baked.report)?,
-        &serde_json::to_value(&baked.batches)?,
-    )
+    let mut report = serde_json::to_value(&baked.report)?;
+    if let Some(mib) = peak_memory_mib() {
+        report["peak_memory_mib"] = mib.into();
+    }
+    write_outputs(&args, &report, &serde_json::to_value(&baked.batches)?)
+}
+
+/// The most memory this process has held at once (Linux's VmHWM), in MiB.
+fn peak_memory_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line
+        .trim_start_matches("VmHWM:")
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kib / 1024.0)
 }
 
 /// Uploads the manifest and its meshes to `/v1/levels`, waits, and writes what a local bake
@@ -122,6 +152,26 @@ fn summarize(manifest: &Path, r: &serde_json::Value) {
         r["draw_calls_before"],
         r["draw_calls_after"],
     );
+    let soup = &r["soup"];
+    if soup.is_object() {
+        let grid = &soup["grid"];
+        println!(
+            "soup: {} surface pieces ({} triangles) in {} cells of {:.1}, {} eye points at {}; grid {} bricks \
+             on {}, {:.1} MiB, voxel {:.3} (effective {}); peak memory {:.0} MiB",
+            soup["pieces"],
+            soup["piece_triangles"],
+            soup["cells"],
+            soup["cell_size"].as_f64().unwrap_or_default(),
+            soup["eye_points"],
+            soup["eye_height"],
+            grid["bricks"],
+            soup["bricks_device"].as_str().unwrap_or("?"),
+            grid["bytes"].as_f64().unwrap_or_default() / f64::from(1 << 20),
+            grid["voxel_size"].as_f64().unwrap_or_default(),
+            grid["effective_resolution"],
+            r["peak_memory_mib"].as_f64().unwrap_or_default(),
+        );
+    }
     let cull = &r["cull"];
     if let Some(share) = cull["culled_share"].as_f64() {
         println!(

@@ -2,6 +2,7 @@
 //! through orthographic cameras around a mesh or perspective cameras inside it. The depth
 //! images have a GPU twin, [`gpu`] (shaders/raster.wgsl).
 
+pub mod covered;
 pub mod gpu;
 
 use crate::geom::camera::{Lens, View};

@@ -11,11 +11,13 @@
 //! whole bounds where the lower half is all solid).
 
 pub mod gpu;
+pub mod probes;
 
 use super::{Level, MeshRef};
 use crate::eval::preview::brightness;
 use crate::geom::camera::View;
-use crate::geom::raster::{rasterize, rasterize_inner};
+use crate::geom::raster::covered::Occluder;
+use crate::geom::raster::rasterize;
 use crate::gpu::Gpu;
 use crate::mesh::BoundaryEdge;
 use crate::mesh::topology::orient_closed_components;
@@ -102,12 +104,15 @@ pub fn cull_eval(
         Some(gpu) => Some(gpu_ground_truth(gpu, level, meshes, &boxes, &truth_views, near).map_err(|e| e.to_string())?),
         None => None,
     };
+    // Depth over the pixels the occluder covers whole: a pixel whose centre it covers may still
+    // be partly open (a doorway narrower than a pixel).
+    let covered = Occluder::new(occluder);
     let shots: Vec<(usize, Shot)> = poses
         .par_iter()
         .enumerate()
         .map(|(c, &(eye, forward))| {
             let coarse = View::perspective(eye, -forward, pixels, near);
-            let occluded = occluder_depth(&coarse, occluder);
+            let occluded = covered.depth(&coarse);
             let visible = match &gpu_truth {
                 Some(images) => images[c].clone(),
                 None => ground_truth(&truth_views[c], level, meshes, &boxes),
@@ -181,6 +186,19 @@ pub fn load_meshes<'a>(level: &'a Level, keyed: &HashMap<String, Mesh>) -> Resul
         meshes.insert(m, mesh);
     }
     Ok(meshes)
+}
+
+/// Every instance placed, as one mesh: the map's own triangles.
+pub fn placed_map(level: &Level, meshes: &HashMap<&MeshRef, Mesh>) -> Mesh {
+    let mut map = Mesh::default();
+    for (m, matrix) in &level.instances {
+        let mesh = &meshes[m];
+        map.append(&Mesh {
+            positions: placed_positions(mesh, matrix).map(|p| p.as_vec3()).collect(),
+            triangles: mesh.triangles.clone(),
+        });
+    }
+    map
 }
 
 /// Each instance's bounds, placed.
@@ -291,19 +309,8 @@ fn gpu_ground_truth(
         .collect()
 }
 
-/// The occluders' depth over the pixels they cover whole, each at its farthest: a pixel whose
-/// centre an occluder covers may still be partly open (a doorway narrower than a pixel).
-fn occluder_depth(view: &View, occluder: &Mesh) -> Vec<f32> {
-    let n = view.pixels;
-    let mut depth = vec![f32::INFINITY; n * n];
-    for tri in occluder.triangles_f64() {
-        rasterize_inner(view, &tri, |i, d| depth[i] = depth[i].min(d as f32));
-    }
-    depth
-}
-
 /// A bounding box's screen rectangle (pixels, inclusive, clamped) and nearest depth; None when
-/// it is wholly off screen. A box reaching behind the camera covers the whole screen at depth 0.
+/// it is wholly off screen or behind the camera.
 struct ScreenBox {
     x: [usize; 2],
     y: [usize; 2],
@@ -312,25 +319,31 @@ struct ScreenBox {
 
 fn box_on_screen(view: &View, (lo, hi): &(DVec3, DVec3)) -> Option<ScreenBox> {
     let n = view.pixels as f64;
-    let corners: Vec<DVec3> = (0..8)
-        .map(|c| {
-            let p = DVec3::new(
-                if c & 1 == 0 { lo.x } else { hi.x },
-                if c & 2 == 0 { lo.y } else { hi.y },
-                if c & 4 == 0 { lo.z } else { hi.z },
-            );
-            view.project(p)
-        })
-        .collect();
-    if corners.iter().any(|c| c.z <= view.depth_tolerance()) {
-        // Straddles the camera plane: treat as filling the screen, nearest at the eye. It can
-        // still be outside the frustum, but it is never culled.
-        return Some(ScreenBox {
-            x: [0, view.pixels - 1],
-            y: [0, view.pixels - 1],
-            near: 0.0,
-        });
+    let near = view.depth_tolerance();
+    let corner = |c: usize| {
+        DVec3::new(
+            if c & 1 == 0 { lo.x } else { hi.x },
+            if c & 2 == 0 { lo.y } else { hi.y },
+            if c & 4 == 0 { lo.z } else { hi.z },
+        )
+    };
+    let depth = |p: DVec3| view.project(p).z;
+    // The box cut by the near plane: its corners in front of it, and where its edges cross it.
+    // A box reaching behind the camera thus spreads to the screen's edges, nearest at the plane.
+    let mut points: Vec<DVec3> = (0..8).map(corner).filter(|&p| depth(p) >= near).collect();
+    for c in 0..8 {
+        for axis in [1, 2, 4] {
+            let (p, q) = (corner(c), corner(c | axis));
+            let (zp, zq) = (depth(p), depth(q));
+            if c & axis == 0 && (zp >= near) != (zq >= near) {
+                points.push(p + (q - p) * ((near - zp) / (zq - zp)));
+            }
+        }
     }
+    if points.is_empty() {
+        return None;
+    }
+    let corners: Vec<DVec3> = points.iter().map(|&p| view.project(p)).collect();
     let (a, b) = point_bounds(corners.iter().copied());
     if b.x < 0.0 || b.y < 0.0 || a.x > n || a.y > n {
         return None;

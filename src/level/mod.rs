@@ -6,8 +6,10 @@
 
 pub mod batch;
 pub mod cull;
+pub mod free_space;
 pub mod hidden;
 pub mod preview;
+pub mod soup;
 
 use crate::config::Settings;
 use crate::cook::cook_with_progress;
@@ -225,7 +227,7 @@ impl Occluder {
     }
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct BatchInfo {
     pub name: String,
     pub lo: [f64; 3],
@@ -254,6 +256,9 @@ pub struct LevelReport {
     /// The bake's cull test of its own occluder (`level.cull_cameras`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cull: Option<cull::CullReport>,
+    /// How a map cooked as one soup was cooked.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub soup: Option<soup::SoupInfo>,
     pub timings_ms: crate::cook::Timings,
     /// What was left out, and why.
     pub notes: Vec<String>,
@@ -344,6 +349,7 @@ pub async fn bake(
             .sum(),
         draw_calls_after: batches.len(),
         cull,
+        soup: None,
         timings_ms: timings,
         notes,
     };

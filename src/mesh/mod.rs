@@ -337,6 +337,24 @@ fn weld_parts(raws: Vec<(String, RawMesh)>) -> Result<Vec<Option<Part>>, IngestE
         .collect()
 }
 
+/// Each distinct position once, and for each of `positions` the index of its own among them
+/// (-0.0 and 0.0 are the same position).
+pub fn weld_positions(positions: &[Vec3]) -> (Vec<Vec3>, Vec<u32>) {
+    let key = |p: Vec3| (p + Vec3::ZERO).to_array().map(f32::to_bits);
+    let mut remap = Vec::with_capacity(positions.len());
+    let mut index_of = std::collections::HashMap::with_capacity(positions.len());
+    let mut distinct = Vec::new();
+    for &p in positions {
+        let next = distinct.len() as u32;
+        let index = *index_of.entry(key(p)).or_insert(next);
+        if index == next {
+            distinct.push(p);
+        }
+        remap.push(index);
+    }
+    (distinct, remap)
+}
+
 /// Welds vertices with identical positions, drops degenerate triangles, and validates.
 pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
     if let Some((i, p)) = raw.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
@@ -351,19 +369,7 @@ pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
         source_frame: raw.source_frame,
         ..Default::default()
     };
-    // -0.0 and 0.0 are the same position.
-    let key = |p: Vec3| (p + Vec3::ZERO).to_array().map(f32::to_bits);
-    let mut remap = Vec::with_capacity(raw.positions.len());
-    let mut index_of = std::collections::HashMap::with_capacity(raw.positions.len());
-    let mut positions = Vec::new();
-    for &p in &raw.positions {
-        let next = positions.len() as u32;
-        let index = *index_of.entry(key(p)).or_insert(next);
-        if index == next {
-            positions.push(p);
-        }
-        remap.push(index);
-    }
+    let (positions, remap) = weld_positions(&raw.positions);
     let mut triangles = Vec::with_capacity(raw.triangles.len());
     for tri in &raw.triangles {
         let t = tri.map(|i| remap[i as usize]);

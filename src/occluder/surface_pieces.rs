@@ -153,7 +153,11 @@ fn retriangulate(mesh: &Mesh, region: &[usize], tolerance: f64) -> Option<Vec<[[
     let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> = ConstrainedDelaunayTriangulation::new();
     let mut vertex_of_handle: HashMap<usize, u32> = HashMap::new();
     let mut handle_of_vertex: HashMap<u32, spade::handles::FixedVertexHandle> = HashMap::new();
-    for &v in outline.neighbours.keys() {
+    // In a fixed order: where corners lie on one circle (a rectangle's), the order of insertion
+    // picks the triangulation.
+    let mut corners: Vec<u32> = outline.neighbours.keys().copied().collect();
+    corners.sort_unstable();
+    for v in corners {
         let p = flat(v);
         let handle = cdt.insert(Point2::new(p.x, p.y)).ok()?;
         if vertex_of_handle.insert(handle.index(), v).is_some() {

@@ -119,7 +119,7 @@ fn run_probes(args: &CullEvalArgs, level: &level::Level, occluder: &mesh::Mesh, 
     let boxes = space.probes(probes, 0x9e37_79b9);
     if poses.len() < args.cameras || boxes.len() < probes {
         bail!(
-            "the map's floors have room for {} of {} cameras and {} of {probes} probes at --eye-height {} (in the map's units)",
+            "the map's floors have room for {} of {} cameras and {} of {probes} probes at --eye-height {:?} (in the map's units)",
             poses.len(),
             args.cameras,
             boxes.len(),

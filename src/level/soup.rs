@@ -34,6 +34,10 @@ use std::time::Instant;
 
 /// Eye points looked from, per cell holding pieces.
 const EYES_PER_CELL: usize = 8;
+/// Eye points at most, whatever the cells: each costs four views of every piece triangle, so
+/// small cells (`level.soup_cell_size`) share these rather than cost hours. The default
+/// cells (at most 8³) never reach it.
+const MAX_EYES: usize = 4096;
 /// Pixels along a side of each view the selection looks through.
 const FACE_PIXELS: usize = 64;
 
@@ -92,7 +96,7 @@ pub fn cook_soup(
     let pieces = surface_pieces::find(&map, &vec![true; map.triangles.len()], 2e-5 * radius);
     lap("pieces", timings);
     let cells = by_cell(&pieces, cell_size);
-    let eyes = FreeSpace::new(&grid, settings.eye_height).cameras(EYES_PER_CELL * cells.len(), 0x5eed);
+    let eyes = FreeSpace::new(&grid, settings.eye_height).cameras((EYES_PER_CELL * cells.len()).min(MAX_EYES), 0x5eed);
     if eyes.is_empty() {
         return Err(format!(
             "no floor with room to stand at level.eye_height = {} (in the map's units): set it to a player's eye height",

@@ -13,7 +13,7 @@
 //! Besides the world axes, frames turned by 45° about each axis give diagonal quads, which cover
 //! what oblique views see of rounded shapes.
 
-use super::rectangle::{self, CellRect};
+use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape};
 use crate::mesh::{Mesh, point_bounds};
 use glam::{DQuat, DVec3};
@@ -37,7 +37,6 @@ const PLANE_SPACING: f64 = 4.0;
 struct Gap {
     lo: f64,
     hi: f64,
-    used: bool,
 }
 
 /// The 2D grid of one axis of a frame: cells of size `cell` from `origin` over the frame's axes
@@ -108,7 +107,7 @@ pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -
             let margin = 1e-6 * size;
             let gaps = inside_gaps(mesh, &g, margin, inside);
             let planes = candidate_planes(&gaps, lo[axis], hi[axis], cell);
-            best_rectangles(&g, gaps, &planes, margin)
+            best_rectangles(&g, &gaps, &planes, margin)
         })
         .collect()
 }
@@ -117,7 +116,7 @@ pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -
 fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -> bool + Sync)) -> Vec<Vec<Gap>> {
     let nv = g.dims[1];
     let cells = g.dims[0] * nv;
-    let blocked: Vec<(u32, f64, f64)> = (0..mesh.triangles.len())
+    let blocked: Vec<(u32, (f64, f64))> = (0..mesh.triangles.len())
         .into_par_iter()
         .fold(Vec::new, |mut out, t| {
             let tri = mesh.corners(t).map(|p| g.uv(p.as_dvec3()));
@@ -126,15 +125,19 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
             let (ru, rv) = (g.range(0, lo(0), hi(0)), g.range(1, lo(1), hi(1)));
             if ru.len() == 1 && rv.len() == 1 {
                 // Wholly inside one cell: no clipping.
-                out.push(((ru.start * nv + rv.start) as u32, lo(2), hi(2)));
+                out.push(((ru.start * nv + rv.start) as u32, (lo(2), hi(2))));
                 return out;
             }
+            // Clip to each column's strip once, then the strip to each cell of it.
             for u in ru {
+                let u0 = g.origin[0] + u as f64 * g.cell;
+                let Some(strip) = Polygon::triangle(&tri).clip(0, [u0, u0 + g.cell]) else {
+                    continue;
+                };
                 for v in rv.clone() {
-                    let u0 = g.origin[0] + u as f64 * g.cell;
                     let v0 = g.origin[1] + v as f64 * g.cell;
-                    if let Some((t0, t1)) = clipped_heights(&tri, [u0, u0 + g.cell], [v0, v0 + g.cell]) {
-                        out.push(((u * nv + v) as u32, t0, t1));
+                    if let Some(cell) = strip.clip(1, [v0, v0 + g.cell]) {
+                        out.push(((u * nv + v) as u32, cell.heights()));
                     }
                 }
             }
@@ -146,7 +149,7 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
         });
     // Counting sort by cell.
     let mut starts = vec![0usize; cells + 1];
-    for &(c, _, _) in &blocked {
+    for &(c, _) in &blocked {
         starts[c as usize + 1] += 1;
     }
     for c in 0..cells {
@@ -154,8 +157,8 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
     }
     let mut ranges = vec![(0.0f64, 0.0f64); blocked.len()];
     let mut next = starts.clone();
-    for &(c, t0, t1) in &blocked {
-        ranges[next[c as usize]] = (t0, t1);
+    for &(c, heights) in &blocked {
+        ranges[next[c as usize]] = heights;
         next[c as usize] += 1;
     }
     let mut by_cell: Vec<&mut [(f64, f64)]> = Vec::with_capacity(cells);
@@ -181,11 +184,7 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
                 if top > f64::NEG_INFINITY && t0 - top > 2.0 * margin {
                     let mid = 0.5 * (top + t0);
                     if inside(g.point(center[0], center[1], mid)) {
-                        gaps.push(Gap {
-                            lo: top,
-                            hi: t0,
-                            used: false,
-                        });
+                        gaps.push(Gap { lo: top, hi: t0 });
                     }
                 }
                 top = top.max(t1);
@@ -195,42 +194,62 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
         .collect()
 }
 
-/// The heights that triangle `tri` (in (u, v, t)) spans over the closed rectangle
-/// [u0, u1] × [v0, v1], if it meets it: Sutherland–Hodgman clipping.
-fn clipped_heights(tri: &[[f64; 3]; 3], u: [f64; 2], v: [f64; 2]) -> Option<(f64, f64)> {
-    // A triangle clipped by four lines has at most seven corners.
-    let mut poly = [[0.0f64; 3]; 8];
-    poly[..3].copy_from_slice(tri);
-    let mut len = 3;
-    // (coordinate, bound, keep the side where coordinate >= bound)
-    for (k, bound, above) in [(0, u[0], true), (0, u[1], false), (1, v[0], true), (1, v[1], false)] {
+/// A convex polygon in (u, v, t), clipped by Sutherland–Hodgman: a triangle clipped by four
+/// lines has at most seven corners.
+#[derive(Clone, Copy)]
+struct Polygon {
+    corners: [[f64; 3]; 8],
+    len: usize,
+}
+
+impl Polygon {
+    fn triangle(tri: &[[f64; 3]; 3]) -> Polygon {
+        let mut corners = [[0.0; 3]; 8];
+        corners[..3].copy_from_slice(tri);
+        Polygon { corners, len: 3 }
+    }
+
+    /// The part with coordinate `k` in the closed range `bounds`, if any.
+    fn clip(&self, k: usize, bounds: [f64; 2]) -> Option<Polygon> {
+        let lower = self.clip_side(k, bounds[0], true)?;
+        lower.clip_side(k, bounds[1], false)
+    }
+
+    /// The part on one side of coordinate `k` = `bound`: where it is at least `bound` when
+    /// `above`, else at most.
+    fn clip_side(&self, k: usize, bound: f64, above: bool) -> Option<Polygon> {
         let keeps = |p: &[f64; 3]| if above { p[k] >= bound } else { p[k] <= bound };
-        if poly[..len].iter().all(keeps) {
-            continue;
+        let corners = &self.corners[..self.len];
+        if corners.iter().all(keeps) {
+            return Some(*self);
         }
-        let mut next = [[0.0f64; 3]; 8];
-        let mut next_len = 0;
-        for i in 0..len {
-            let (a, b) = (poly[i], poly[(i + 1) % len]);
+        let mut out = Polygon {
+            corners: [[0.0; 3]; 8],
+            len: 0,
+        };
+        for i in 0..self.len {
+            let (a, b) = (corners[i], corners[(i + 1) % self.len]);
             if keeps(&a) {
-                next[next_len] = a;
-                next_len += 1;
+                out.corners[out.len] = a;
+                out.len += 1;
             }
             if keeps(&a) != keeps(&b) {
                 let s = (bound - a[k]) / (b[k] - a[k]);
-                next[next_len] = std::array::from_fn(|j| if j == k { bound } else { a[j] + s * (b[j] - a[j]) });
-                next_len += 1;
+                out.corners[out.len] = std::array::from_fn(|j| if j == k { bound } else { a[j] + s * (b[j] - a[j]) });
+                out.len += 1;
             }
         }
-        (poly, len) = (next, next_len);
-        if len == 0 {
-            return None;
-        }
+        (out.len > 0).then_some(out)
     }
-    let heights = poly[..len].iter().map(|p| p[2]);
-    let t0 = heights.clone().fold(f64::INFINITY, f64::min);
-    let t1 = heights.fold(f64::NEG_INFINITY, f64::max);
-    Some((t0, t1))
+
+    /// The lowest and highest t of its corners.
+    fn heights(&self) -> (f64, f64) {
+        let t = self.corners[..self.len].iter().map(|p| p[2]);
+        (
+            t.clone().fold(f64::INFINITY, f64::min),
+            t.fold(f64::NEG_INFINITY, f64::max),
+        )
+    }
 }
 
 /// Planes worth trying: evenly spaced along the axis, plus the middles of the thin gaps
@@ -252,84 +271,176 @@ fn candidate_planes(gaps: &[Vec<Gap>], lo: f64, hi: f64, cell: f64) -> Vec<f64> 
     planes
 }
 
-/// The gap of a cell that holds plane `t` with `margin` to spare.
-fn gap_at(gaps: &[Gap], t: f64, margin: f64) -> Option<usize> {
-    gaps.iter().position(|g| g.lo + margin < t && t < g.hi - margin)
+/// How far a plane's bound is from its best rectangle.
+#[derive(Clone, Copy, PartialEq)]
+enum Bound {
+    /// The plane's open cells: no rectangle has more.
+    Counted,
+    /// The cells of a best that a taken rectangle has since overlapped.
+    Stale,
+    /// The cells of `best`, searched over the cells open now.
+    Exact,
 }
 
-/// Where one candidate plane is open: the cells with the gap that holds the plane, and the
-/// largest rectangle of those whose gap is still unused.
+/// Where one candidate plane is open, a bit per cell of the axis grid, and the largest
+/// rectangle of those cells.
 struct PlaneCells {
     t: f64,
-    cells: Vec<(usize, usize)>,
+    open: Vec<u64>,
     best: Option<CellRect>,
-    /// The cells of `best`; while `stale`, only an upper bound on them.
+    /// An upper bound on the cells of the largest open rectangle; exact when `state` says so.
     bound: usize,
-    /// Not searched since the open cells last changed under `best`: at first, and after a
-    /// taken rectangle overlaps it.
-    stale: bool,
+    state: Bound,
+    /// The search, over the bounding box of the cells open when it first ran (from the corner
+    /// given), and the first of its rows where a cell has closed since it last ran.
+    sweep: Option<([usize; 2], Sweep)>,
+    dirty_from: usize,
 }
 
-impl PlaneCells {
-    fn new(gaps: &[Vec<Gap>], t: f64, margin: f64) -> PlaneCells {
-        let cells: Vec<(usize, usize)> = gaps
+/// The candidate planes of one axis grid, and which of them each gap holds.
+struct Planes {
+    list: Vec<PlaneCells>,
+    /// Plane indices in order of height, and the heights in that order.
+    order: Vec<usize>,
+    heights: Vec<f64>,
+    margin: f64,
+    /// Cells along the grid's second axis, and words of a row of `open`.
+    nv: usize,
+    row_words: usize,
+}
+
+impl Planes {
+    /// Each plane open in the cells with a gap that holds it: one pass over the gaps, since a
+    /// gap holds a run of planes in order of height, and a cell's gaps do not overlap.
+    fn new(gaps: &[Vec<Gap>], planes: &[f64], margin: f64, dims: [usize; 2]) -> Planes {
+        let mut order: Vec<usize> = (0..planes.len()).collect();
+        order.sort_by(|&a, &b| planes[a].total_cmp(&planes[b]));
+        let heights = order.iter().map(|&i| planes[i]).collect();
+        let row_words = dims[1].div_ceil(64);
+        let list = planes
             .iter()
-            .enumerate()
-            .filter_map(|(c, g)| gap_at(g, t, margin).map(|k| (c, k)))
+            .map(|&t| PlaneCells {
+                t,
+                open: vec![0; dims[0] * row_words],
+                best: None,
+                bound: 0,
+                state: Bound::Counted,
+                sweep: None,
+                dirty_from: 0,
+            })
             .collect();
-        // No rectangle has more cells than the plane has open.
-        PlaneCells {
-            t,
-            bound: cells.len(),
-            cells,
-            best: None,
-            stale: true,
+        let mut all = Planes {
+            list,
+            order,
+            heights,
+            margin,
+            nv: dims[1],
+            row_words,
+        };
+        for (c, cell_gaps) in gaps.iter().enumerate() {
+            for gap in cell_gaps {
+                let (word, bit) = all.bit(c);
+                for k in all.holding(gap) {
+                    let plane = &mut all.list[all.order[k]];
+                    plane.open[word] |= bit;
+                    plane.bound += 1;
+                }
+            }
+        }
+        all
+    }
+
+    /// The word of `open` and the bit in it of cell `c`.
+    fn bit(&self, c: usize) -> (usize, u64) {
+        let (u, v) = (c / self.nv, c % self.nv);
+        (u * self.row_words + v / 64, 1 << (v % 64))
+    }
+
+    /// The planes, as positions in `order`, that `gap` holds with `margin` to spare.
+    fn holding(&self, gap: &Gap) -> std::ops::Range<usize> {
+        let first = self.heights.partition_point(|&t| t <= gap.lo + self.margin);
+        let end = self.heights.partition_point(|&t| t < gap.hi - self.margin);
+        first..end.max(first)
+    }
+
+    /// Closes cell `c` on every plane its `gap` holds: a quad now fills that gap there. A plane
+    /// whose best rectangle held the cell has only a bound left.
+    fn close(&mut self, c: usize, gap: &Gap) {
+        let (word, bit) = self.bit(c);
+        let (u, v) = (c / self.nv, c % self.nv);
+        for k in self.holding(gap) {
+            let plane = &mut self.list[self.order[k]];
+            plane.open[word] &= !bit;
+            if let Some(([u0, _], _)) = plane.sweep {
+                plane.dirty_from = plane.dirty_from.min(u - u0);
+            }
+            let holds = |r: &CellRect| (r.u[0]..r.u[1]).contains(&u) && (r.v[0]..r.v[1]).contains(&v);
+            if plane.best.as_ref().is_some_and(holds) {
+                plane.state = Bound::Stale;
+            }
         }
     }
 
-    /// Recomputes `best` over the cells whose gap is unused. Used gaps stay used, so they leave
-    /// the list for good, and the search grid shrinks to what is left.
-    fn update(&mut self, gaps: &[Vec<Gap>], nv: usize) {
-        self.cells.retain(|&(c, k)| !gaps[c][k].used);
-        self.best = None;
-        self.bound = 0;
-        self.stale = false;
-        if self.cells.is_empty() {
-            return;
+    /// Searches plane `i`'s open cells for its best rectangle: at first over their bounding
+    /// box, then again only from the first row where a cell closed.
+    fn search(&mut self, i: usize) {
+        let (nv, row_words) = (self.nv, self.row_words);
+        let plane = &mut self.list[i];
+        let open = &plane.open;
+        if plane.sweep.is_none() {
+            plane.sweep = open_bounds(open, nv, row_words)
+                .map(|(lo, hi)| (lo, Sweep::new(hi[0] + 1 - lo[0], hi[1] + 1 - lo[1], MIN_SIDE)));
+            plane.dirty_from = 0;
         }
-        let mut bounds = CellRect {
-            u: [usize::MAX, 0],
-            v: [usize::MAX, 0],
-        };
-        for &(c, _) in &self.cells {
-            let (u, v) = (c / nv, c % nv);
-            bounds.u = [bounds.u[0].min(u), bounds.u[1].max(u + 1)];
-            bounds.v = [bounds.v[0].min(v), bounds.v[1].max(v + 1)];
-        }
-        let (bu, bv) = (bounds.u[1] - bounds.u[0], bounds.v[1] - bounds.v[0]);
-        let mut mask = vec![false; bu * bv];
-        for &(c, _) in &self.cells {
-            mask[(c / nv - bounds.u[0]) * bv + c % nv - bounds.v[0]] = true;
-        }
-        self.best = rectangle::largest(&mask, bu, bv, MIN_SIDE)
-            .filter(|r| r.cells() >= MIN_CELLS)
-            .map(|r| CellRect {
-                u: r.u.map(|u| u + bounds.u[0]),
-                v: r.v.map(|v| v + bounds.v[0]),
-            });
-        self.bound = self.best.map_or(0, |r| r.cells());
+        plane.best = plane.sweep.as_mut().and_then(|([u0, v0], sweep)| {
+            let is_open = |u: usize, v: usize| {
+                let (u, v) = (u + *u0, v + *v0);
+                open[u * row_words + v / 64] >> (v % 64) & 1 == 1
+            };
+            sweep
+                .run(plane.dirty_from, is_open)
+                .filter(|r| r.cells() >= MIN_CELLS)
+                .map(|r| CellRect {
+                    u: r.u.map(|u| u + *u0),
+                    v: r.v.map(|v| v + *v0),
+                })
+        });
+        plane.dirty_from = usize::MAX;
+        plane.bound = plane.best.map_or(0, |r| r.cells());
+        plane.state = Bound::Exact;
     }
+}
+
+/// The first and last rows and columns with an open cell, if any.
+fn open_bounds(open: &[u64], nv: usize, row_words: usize) -> Option<([usize; 2], [usize; 2])> {
+    let rows: Vec<usize> = (0..open.len() / row_words)
+        .filter(|&u| open[u * row_words..(u + 1) * row_words].iter().any(|&w| w != 0))
+        .collect();
+    let mut columns = vec![0u64; row_words];
+    for &u in &rows {
+        for (any, word) in columns.iter_mut().zip(&open[u * row_words..]) {
+            *any |= word;
+        }
+    }
+    let (a, b) = (
+        columns.iter().position(|&w| w != 0)?,
+        columns.iter().rposition(|&w| w != 0)?,
+    );
+    let v0 = a * 64 + columns[a].trailing_zeros() as usize;
+    let v1 = (b * 64 + 63 - columns[b].leading_zeros() as usize).min(nv - 1);
+    Some(([*rows.first()?, v0], [*rows.last()?, v1]))
 }
 
 /// Greedy: the largest open rectangle over all candidate planes, then the next on what is left.
 /// A plane is searched only once an upper bound on its rectangle leads all others: its open
-/// cells at first; after a taken rectangle meets its best, that best. These are lazy greedy
-/// picks, the same as searching every plane at first and again whenever it loses cells.
-fn best_rectangles(g: &AxisGrid, mut gaps: Vec<Vec<Gap>>, planes: &[f64], margin: f64) -> Vec<Panel> {
+/// cells at first; after a taken rectangle closes a cell of its best, that best. These are lazy
+/// greedy picks, the same as searching every plane at first and again whenever it loses cells.
+fn best_rectangles(g: &AxisGrid, gaps: &[Vec<Gap>], planes: &[f64], margin: f64) -> Vec<Panel> {
     let nv = g.dims[1];
-    let mut candidates: Vec<PlaneCells> = planes.par_iter().map(|&t| PlaneCells::new(&gaps, t, margin)).collect();
+    let mut planes = Planes::new(gaps, planes, margin, g.dims);
     let mut quads = Vec::new();
     while quads.len() < MAX_PER_AXIS {
+        let candidates = &planes.list;
         let Some(top) = (0..candidates.len())
             .filter(|&i| candidates[i].bound > 0)
             .max_by(|&a, &b| {
@@ -339,25 +450,25 @@ fn best_rectangles(g: &AxisGrid, mut gaps: Vec<Vec<Gap>>, planes: &[f64], margin
         else {
             break;
         };
-        let candidate = &mut candidates[top];
-        if candidate.stale {
-            candidate.update(&gaps, nv);
+        if candidates[top].state != Bound::Exact {
+            planes.search(top);
             continue;
         }
-        let (rect, plane) = (candidate.best.expect("a fresh bound counts its best"), candidate.t);
+        let (rect, plane) = (
+            candidates[top].best.expect("an exact bound counts its best"),
+            candidates[top].t,
+        );
         // Centre the quad in the heights that every cell of the rectangle leaves open.
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
         for (u, v) in rect.iter() {
             let c = u * nv + v;
-            let k = gap_at(&gaps[c], plane, margin).expect("the rectangle's cells hold the plane");
-            lo = lo.max(gaps[c][k].lo);
-            hi = hi.min(gaps[c][k].hi);
-            gaps[c][k].used = true;
-        }
-        let overlaps =
-            |r: &CellRect| r.u[0] < rect.u[1] && rect.u[0] < r.u[1] && r.v[0] < rect.v[1] && rect.v[0] < r.v[1];
-        for p in candidates.iter_mut().filter(|p| p.best.as_ref().is_some_and(overlaps)) {
-            p.stale = true;
+            let gap = gaps[c]
+                .iter()
+                .find(|gap| gap.lo + margin < plane && plane < gap.hi - margin)
+                .expect("the rectangle's cells hold the plane");
+            lo = lo.max(gap.lo);
+            hi = hi.min(gap.hi);
+            planes.close(c, gap);
         }
         let t = 0.5 * (lo + hi);
         let u = rect.u.map(|k| g.origin[0] + k as f64 * g.cell);

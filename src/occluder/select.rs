@@ -8,6 +8,7 @@ use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::raster::coverage_mask;
 use crate::mesh::Mesh;
 use rayon::prelude::*;
+use std::collections::HashMap;
 
 /// Views and pixels of the selection's silhouettes: coarser than `eval`'s, enough to rank boxes.
 const VIEWS: usize = 24;
@@ -163,51 +164,87 @@ impl State<'_> {
     }
 
     /// Adds the piece with the most new pixels per triangle until the budget is spent.
+    ///
+    /// A piece's gain only shrinks as pixels are covered, so each sheet keeps its last gain as
+    /// a bound, and sheets are weighed again in order of that bound per triangle only until the
+    /// best weighed one leads every bound: lazy greedy, the same picks as weighing all.
     fn fill(&mut self) {
         let mut covered = self.covered();
+        let mut taken = vec![false; self.masks.len()];
+        for c in &self.chosen {
+            taken[c.0] = true;
+        }
+        let gain = |covered: &[u64], i: usize| -> u64 {
+            self.masks[i]
+                .iter()
+                .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
+                .sum()
+        };
+        let ratio = |g: u64, cost: usize| g as f64 / cost.max(1) as f64;
+        // (ratio, candidate): the larger ratio, then the lower index, is better.
+        let better = |a: (f64, usize), b: (f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)).is_gt();
+        let first_sheet = self.boxes.len();
+        let mut bounds: Vec<u64> = (first_sheet..self.masks.len()).map(|i| gain(&covered, i)).collect();
+        // The chosen boxes' solid with each box merged in.
+        let mut with_box: HashMap<usize, Mesh> = HashMap::new();
         loop {
-            let gain = |i: usize| -> u64 {
-                self.masks[i]
-                    .iter()
-                    .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
-                    .sum()
-            };
-            let mut ranked: Vec<(usize, u64)> = (0..self.masks.len())
-                .filter(|&i| self.chosen.iter().all(|c| c.0 != i))
-                .map(|i| (i, gain(i)))
+            let used = self.triangles();
+            let mut sheets: Vec<usize> = (first_sheet..self.masks.len())
+                .filter(|&i| !taken[i] && used + self.costs[i] <= self.max_triangles)
+                .collect();
+            let bound = |bounds: &[u64], i: usize| ratio(bounds[i - first_sheet], self.costs[i]);
+            sheets.sort_by(|&a, &b| bound(&bounds, b).total_cmp(&bound(&bounds, a)).then(a.cmp(&b)));
+            let mut best_sheet: Option<(usize, u64, f64)> = None;
+            for i in sheets {
+                if best_sheet.is_some_and(|(b, _, r)| better((r, b), (bound(&bounds, i), i))) {
+                    break;
+                }
+                let g = gain(&covered, i);
+                bounds[i - first_sheet] = g;
+                let r = ratio(g, self.costs[i]);
+                if g as f64 >= self.threshold && best_sheet.is_none_or(|(b, _, br)| better((r, i), (br, b))) {
+                    best_sheet = Some((i, g, r));
+                }
+            }
+            let mut ranked_boxes: Vec<(usize, u64)> = (0..first_sheet)
+                .filter(|&i| !taken[i])
+                .map(|i| (i, gain(&covered, i)))
                 .filter(|&(_, g)| g as f64 >= self.threshold)
                 .collect();
-            ranked.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-            let used = self.triangles();
-            // A sheet costs its triangles. The merge decides what a box really costs: touching
-            // boxes share faces, and T-junctions add vertices; price the best few by merging
-            // them in.
-            let priced_sheets = ranked
+            ranked_boxes.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+            // The merge decides what a box really costs: touching boxes share faces, and
+            // T-junctions add vertices; price the best few by merging them in. A merge holds
+            // until the chosen boxes change.
+            let lookahead = &ranked_boxes[..ranked_boxes.len().min(LOOKAHEAD)];
+            let unpriced: Vec<usize> = lookahead
                 .iter()
-                .filter(|&&(i, _)| i >= self.boxes.len())
-                .filter(|&&(i, _)| used + self.costs[i] <= self.max_triangles)
-                .map(|&(i, g)| (i, g, g as f64 / self.costs[i].max(1) as f64, None));
-            let priced_boxes = ranked
-                .iter()
-                .filter(|&&(i, _)| i < self.boxes.len())
-                .take(LOOKAHEAD)
-                .filter_map(|&(i, g)| {
-                    let solid = self.merged_with(Some(i));
-                    let added = solid.triangles.len().saturating_sub(self.solid.triangles.len());
-                    (used + added <= self.max_triangles).then(|| (i, g, g as f64 / added.max(1) as f64, Some(solid)))
-                });
-            let best = priced_sheets
+                .map(|&(i, _)| i)
+                .filter(|i| !with_box.contains_key(i))
+                .collect();
+            let merged: Vec<(usize, Mesh)> = unpriced
+                .into_par_iter()
+                .map(|i| (i, self.merged_with(Some(i))))
+                .collect();
+            with_box.extend(merged);
+            let priced_boxes = lookahead.iter().filter_map(|&(i, g)| {
+                let added = with_box[&i].triangles.len().saturating_sub(self.solid.triangles.len());
+                (used + added <= self.max_triangles).then(|| (i, g, ratio(g, added)))
+            });
+            let best = best_sheet
+                .into_iter()
                 .chain(priced_boxes)
                 .max_by(|a, b| a.2.total_cmp(&b.2).then(b.0.cmp(&a.0)));
-            let Some((i, pixels, _, solid)) = best else {
+            let Some((i, pixels, _)) = best else {
                 break;
             };
             for &(w, bits) in &self.masks[i] {
                 covered[w as usize] |= bits;
             }
             self.chosen.push((i, pixels));
-            if let Some(solid) = solid {
-                self.solid = solid;
+            taken[i] = true;
+            if i < first_sheet {
+                self.solid = with_box.remove(&i).expect("a chosen box was priced");
+                with_box.clear();
             }
         }
     }

@@ -381,16 +381,26 @@ impl Planes {
         }
     }
 
-    /// Searches plane `i`'s open cells for its best rectangle: at first over their bounding
-    /// box, then again only from the first row where a cell closed.
+    /// Searches plane `i`'s open cells for its best rectangle: over their bounding box, then
+    /// again only from the first row where a cell closed, until the open cells fit in half
+    /// that box, when the search starts anew over their box.
     fn search(&mut self, i: usize) {
         let (nv, row_words) = (self.nv, self.row_words);
         let plane = &mut self.list[i];
         let open = &plane.open;
-        if plane.sweep.is_none() {
-            plane.sweep = open_bounds(open, nv, row_words)
-                .map(|(lo, hi)| (lo, Sweep::new(hi[0] + 1 - lo[0], hi[1] + 1 - lo[1], MIN_SIDE)));
-            plane.dirty_from = 0;
+        match open_bounds(open, nv, row_words) {
+            None => plane.sweep = None,
+            Some((lo, hi)) => {
+                let (rows, columns) = (hi[0] + 1 - lo[0], hi[1] + 1 - lo[1]);
+                if plane
+                    .sweep
+                    .as_ref()
+                    .is_none_or(|(_, sweep)| 2 * rows * columns <= sweep.cells())
+                {
+                    plane.sweep = Some((lo, Sweep::new(rows, columns, MIN_SIDE)));
+                    plane.dirty_from = 0;
+                }
+            }
         }
         plane.best = plane.sweep.as_mut().and_then(|([u0, v0], sweep)| {
             let is_open = |u: usize, v: usize| {

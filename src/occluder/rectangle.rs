@@ -90,6 +90,11 @@ impl Sweep {
         }
     }
 
+    /// The cells it sweeps.
+    pub fn cells(&self) -> usize {
+        self.heights.len()
+    }
+
     /// The largest rectangle of the cells for which `open(u, v)` holds, sweeping again from
     /// row `from`: rows before it must be as the last run saw them.
     pub fn run(&mut self, from: usize, open: impl Fn(usize, usize) -> bool) -> Option<CellRect> {

@@ -5,7 +5,7 @@
 
 use super::{WorldBox, merge::merge};
 use crate::geom::camera::{View, fibonacci_sphere};
-use crate::geom::raster::coverage_mask;
+use crate::geom::raster::{coverage_mask, rasterize_mesh};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -63,14 +63,22 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
     let masks: Vec<SparseMask> = shapes
         .par_iter()
         .map(|shape| {
+            // One view's bits at a time, cleared after over the words drawn.
+            let mut image = vec![0u64; silhouettes.first().map_or(0, Vec::len)];
             let mut offset = 0;
             let mut mask = Vec::new();
             for (v, s) in views.iter().zip(&silhouettes) {
-                let m = coverage_mask(v, shape);
-                for (w, (a, b)) in m.into_iter().zip(s).enumerate() {
-                    if a & b != 0 {
-                        mask.push(((offset + w) as u32, a & b));
+                // The first word drawn and one past the last.
+                let (mut first, mut end) = (usize::MAX, 0);
+                rasterize_mesh(v, shape, |i, _| {
+                    image[i / 64] |= 1 << (i % 64);
+                    (first, end) = (first.min(i / 64), end.max(i / 64 + 1));
+                });
+                for w in first.min(end)..end {
+                    if image[w] & s[w] != 0 {
+                        mask.push(((offset + w) as u32, image[w] & s[w]));
                     }
+                    image[w] = 0;
                 }
                 offset += s.len();
             }

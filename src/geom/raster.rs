@@ -201,8 +201,19 @@ pub fn depth_images(views: &[View], mesh: &Mesh, gpu: Option<&Gpu>) -> Result<Ve
 /// A coverage bitmask, one bit per pixel.
 pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
     let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
-    rasterize_mesh(view, mesh, |i, _| mask[i / 64] |= 1 << (i % 64));
+    draw_coverage(view, mesh, &mut mask);
     mask
+}
+
+/// Sets the bits of `mask` (one bit per pixel) for the pixels `mesh` covers; returns the words
+/// drawn, from the first to one past the last (empty when none).
+pub fn draw_coverage(view: &View, mesh: &Mesh, mask: &mut [u64]) -> std::ops::Range<usize> {
+    let (mut first, mut end) = (usize::MAX, 0);
+    rasterize_mesh(view, mesh, |i, _| {
+        mask[i / 64] |= 1 << (i % 64);
+        (first, end) = (first.min(i / 64), end.max(i / 64 + 1));
+    });
+    first.min(end)..end
 }
 
 #[cfg(test)]

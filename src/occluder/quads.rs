@@ -39,6 +39,14 @@ struct Gap {
     hi: f64,
 }
 
+impl Gap {
+    /// Whether a plane at height `t` lies in it with `margin` to spare ([`Planes::holding`]
+    /// finds the planes this holds, in order of height).
+    fn holds(&self, t: f64, margin: f64) -> bool {
+        self.lo + margin < t && t < self.hi - margin
+    }
+}
+
 /// The 2D grid of one axis of a frame: cells of size `cell` from `origin` over the frame's axes
 /// `(axis+1, axis+2) % 3`. The frame's coordinates of a world point p are `turn * p`.
 struct AxisGrid {
@@ -276,7 +284,7 @@ fn candidate_planes(gaps: &[Vec<Gap>], lo: f64, hi: f64, cell: f64) -> Vec<f64> 
 enum Bound {
     /// The plane's open cells: no rectangle has more.
     Counted,
-    /// The cells of a best that a taken rectangle has since overlapped.
+    /// The cells of a best that a taken rectangle has since closed a cell of.
     Stale,
     /// The cells of `best`, searched over the cells open now.
     Exact,
@@ -385,10 +393,10 @@ impl Planes {
     /// again only from the first row where a cell closed, until the open cells fit in half
     /// that box, when the search starts anew over their box.
     fn search(&mut self, i: usize) {
-        let (nv, row_words) = (self.nv, self.row_words);
+        let row_words = self.row_words;
         let plane = &mut self.list[i];
         let open = &plane.open;
-        match open_bounds(open, nv, row_words) {
+        match open_bounds(open, row_words) {
             None => plane.sweep = None,
             Some((lo, hi)) => {
                 let (rows, columns) = (hi[0] + 1 - lo[0], hi[1] + 1 - lo[1]);
@@ -422,7 +430,7 @@ impl Planes {
 }
 
 /// The first and last rows and columns with an open cell, if any.
-fn open_bounds(open: &[u64], nv: usize, row_words: usize) -> Option<([usize; 2], [usize; 2])> {
+fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2])> {
     let rows: Vec<usize> = (0..open.len() / row_words)
         .filter(|&u| open[u * row_words..(u + 1) * row_words].iter().any(|&w| w != 0))
         .collect();
@@ -437,7 +445,7 @@ fn open_bounds(open: &[u64], nv: usize, row_words: usize) -> Option<([usize; 2],
         columns.iter().rposition(|&w| w != 0)?,
     );
     let v0 = a * 64 + columns[a].trailing_zeros() as usize;
-    let v1 = (b * 64 + 63 - columns[b].leading_zeros() as usize).min(nv - 1);
+    let v1 = b * 64 + 63 - columns[b].leading_zeros() as usize;
     Some(([*rows.first()?, v0], [*rows.last()?, v1]))
 }
 
@@ -474,7 +482,7 @@ fn best_rectangles(g: &AxisGrid, gaps: &[Vec<Gap>], planes: &[f64], margin: f64)
             let c = u * nv + v;
             let gap = gaps[c]
                 .iter()
-                .find(|gap| gap.lo + margin < plane && plane < gap.hi - margin)
+                .find(|gap| gap.holds(plane, margin))
                 .expect("the rectangle's cells hold the plane");
             lo = lo.max(gap.lo);
             hi = hi.min(gap.hi);

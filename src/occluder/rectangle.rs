@@ -19,22 +19,7 @@ impl CellRect {
 
 /// The largest rectangle of true cells at least `min_side` cells wide each way, if any.
 pub fn largest(mask: &[bool], nu: usize, nv: usize, min_side: usize) -> Option<CellRect> {
-    largest_by(nu, nv, min_side, |u, v| mask[u * nv + v])
-}
-
-/// [`largest`] over the cells for which `open(u, v)` holds.
-pub fn largest_by(nu: usize, nv: usize, min_side: usize, open: impl Fn(usize, usize) -> bool) -> Option<CellRect> {
-    // heights[v]: how many rows up to the current one are true in column v.
-    let mut heights = vec![0u32; nv];
-    let mut best: Option<CellRect> = None;
-    let mut stack: Vec<usize> = Vec::with_capacity(nv + 1);
-    for u in 0..nu {
-        for (v, h) in heights.iter_mut().enumerate() {
-            *h = if open(u, v) { *h + 1 } else { 0 };
-        }
-        pop_row(u, &heights, min_side, &mut stack, &mut best);
-    }
-    best
+    Sweep::new(nu, nv, min_side).run(0, |u, v| mask[u * nv + v])
 }
 
 /// The histogram method's pass over row `u`: the rectangles that end on it, each as tall as a
@@ -66,7 +51,7 @@ fn pop_row(u: usize, heights: &[u32], min_side: usize, stack: &mut Vec<usize>, b
     }
 }
 
-/// [`largest_by`] kept row by row, for a mask whose cells only ever close: after cells close
+/// [`largest`] kept row by row, for a mask whose cells only ever close: after cells close
 /// from row `from` on, [`Sweep::run`] redoes only those rows, and finds what a new search
 /// would, the same rectangle included.
 pub struct Sweep {

@@ -5,7 +5,7 @@
 
 use super::{WorldBox, merge::merge};
 use crate::geom::camera::{View, fibonacci_sphere};
-use crate::geom::raster::{coverage_mask, rasterize_mesh};
+use crate::geom::raster::{coverage_mask, draw_coverage};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -68,13 +68,7 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
             let mut offset = 0;
             let mut mask = Vec::new();
             for (v, s) in views.iter().zip(&silhouettes) {
-                // The first word drawn and one past the last.
-                let (mut first, mut end) = (usize::MAX, 0);
-                rasterize_mesh(v, shape, |i, _| {
-                    image[i / 64] |= 1 << (i % 64);
-                    (first, end) = (first.min(i / 64), end.max(i / 64 + 1));
-                });
-                for w in first.min(end)..end {
+                for w in draw_coverage(v, shape, &mut image) {
                     if image[w] & s[w] != 0 {
                         mask.push(((offset + w) as u32, image[w] & s[w]));
                     }
@@ -190,7 +184,8 @@ impl State<'_> {
         };
         let ratio = |g: u64, cost: usize| g as f64 / cost.max(1) as f64;
         // (ratio, candidate): the larger ratio, then the lower index, is better.
-        let better = |a: (f64, usize), b: (f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)).is_gt();
+        let rank = |a: (f64, usize), b: (f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
+        let better = |a: (f64, usize), b: (f64, usize)| rank(a, b).is_gt();
         let first_sheet = self.boxes.len();
         let mut bounds: Vec<u64> = (first_sheet..self.masks.len()).map(|i| gain(&covered, i)).collect();
         // The chosen boxes' solid with each box merged in.
@@ -241,7 +236,7 @@ impl State<'_> {
             let best = best_sheet
                 .into_iter()
                 .chain(priced_boxes)
-                .max_by(|a, b| a.2.total_cmp(&b.2).then(b.0.cmp(&a.0)));
+                .max_by(|a, b| rank((a.2, a.0), (b.2, b.0)));
             let Some((i, pixels, _)) = best else {
                 break;
             };

@@ -512,7 +512,11 @@ fn bricks_on_the_gpu_match_their_cpu_twin() {
         ],
         triangles: vec![[0, 1, 2]],
     };
+    // Walls seen from within: the inside stage finds the space they enclose.
+    let mut walls = cuboid(Vec3::new(-1.0, -1.0, -1.0), Vec3::new(21.0, 5.0, 13.0), &[]);
+    walls.triangles.iter_mut().for_each(|t| t.swap(1, 2));
     let rooms = concat(&[
+        walls,
         cuboid(Vec3::ZERO, Vec3::new(20.0, 0.2, 12.0), &[]),
         cuboid(Vec3::new(9.0, 0.0, 0.0), Vec3::new(11.0, 3.0, 4.0), &[]),
         torus(1.0, 0.4, 48, 24),
@@ -536,6 +540,14 @@ fn bricks_on_the_gpu_match_their_cpu_twin() {
         let on_gpu = BrickGrid::voxelize(map, *voxel_size, Some(&gpu)).expect("GPU bricks");
         assert_eq!(on_cpu.stats(), on_gpu.stats(), "{name}");
         assert!(brick_voxels(&on_cpu) == brick_voxels(&on_gpu), "{name}: voxels differ");
+        assert!(
+            inside_voxels(&on_cpu) == inside_voxels(&on_gpu),
+            "{name}: inside differs"
+        );
+        assert!(
+            name == "slanted triangle" || !inside_voxels(&on_cpu).is_empty(),
+            "{name}: nothing inside"
+        );
         eprintln!("{name}: {:?}", on_cpu.stats());
     }
     // A binding of 128 bricks' voxels: the same grid, in chunks.
@@ -543,4 +555,26 @@ fn bricks_on_the_gpu_match_their_cpu_twin() {
     let chunked = BrickGrid::voxelize(map, *voxel_size, Some(&gpu.with_max_binding(128 * 512))).expect("chunks");
     let whole = BrickGrid::voxelize(map, *voxel_size, None).expect("CPU bricks");
     assert!(brick_voxels(&chunked) == brick_voxels(&whole), "{name} in chunks");
+    assert!(
+        inside_voxels(&chunked) == inside_voxels(&whole),
+        "{name}: inside in chunks"
+    );
+}
+
+/// The voxels a bricked grid finds inside the map, over a lattice of every third voxel (one
+/// not a divisor of the bricks' side, so it meets every place within a brick).
+fn inside_voxels(grid: &BrickGrid) -> Vec<IVec3> {
+    let dims = grid.dims();
+    let mut inside = Vec::new();
+    for x in (0..dims.x).step_by(3) {
+        for y in (0..dims.y).step_by(3) {
+            for z in (0..dims.z).step_by(3) {
+                let v = IVec3::new(x, y, z);
+                if grid.inside(v) {
+                    inside.push(v);
+                }
+            }
+        }
+    }
+    inside
 }

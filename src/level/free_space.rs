@@ -2,9 +2,10 @@
 //! bricked voxel grid of the map's surface ([`BrickGrid`]).
 //!
 //! A floor is a voxel whose surface faces up, with up-facing neighbours around it and empty
-//! voxels above them to the height asked for. A point is inside the map when, looking along
-//! ±x and ±z from it, the first surface met faces back towards it: on top of an outer wall,
-//! or inside a solid (where the surface met shows its back), it does not.
+//! voxels above them to the height asked for. A point must be inside the map, as the grid's
+//! inside stage finds it ([`BrickGrid::inside`]): looking along ±x and ±z from it, the first
+//! surface met faces back towards it; on top of an outer wall, or inside a solid (where the
+//! surface met shows its back), it does not.
 //!
 //! Cameras and probes are spread over the whole map: floors are drawn region by region, one
 //! region after another, so that every part of the map that has floors gets its share.
@@ -63,7 +64,7 @@ impl<'a> FreeSpace<'a> {
             let top = self.grid.to_world(floor.as_dvec3() + DVec3::new(0.5, 1.0, 0.5));
             let eye = top + DVec3::Y * self.eye_height;
             // The cheap test first: an eye above the map's top is outside it.
-            if !self.inside(self.grid.voxel_of(eye)) || !self.standing_room(floor, IVec3::new(1, clear, 1)) {
+            if !self.grid.inside(self.grid.voxel_of(eye)) || !self.standing_room(floor, IVec3::new(1, clear, 1)) {
                 return None;
             }
             let yaw = rng.f64() * std::f64::consts::TAU;
@@ -96,7 +97,7 @@ impl<'a> FreeSpace<'a> {
             let hair = 1e-3;
             let lo = self.grid.to_world(first.as_dvec3() + hair);
             let hi = self.grid.to_world((last + 1).as_dvec3() - hair);
-            self.inside(self.grid.voxel_of((lo + hi) * 0.5)).then_some(Probe {
+            self.grid.inside(self.grid.voxel_of((lo + hi) * 0.5)).then_some(Probe {
                 lo: lo.to_array(),
                 hi: hi.to_array(),
             })
@@ -116,27 +117,6 @@ impl<'a> FreeSpace<'a> {
                 let flat = (dx.abs() > 1 || dz.abs() > 1) || self.grid.get(base) & FACES[2] != 0;
                 flat && (1..=reach.y).all(|dy| self.grid.get(base + IVec3::Y * dy) == 0)
             })
-        })
-    }
-
-    /// Whether the first surface met along ±x and ±z from voxel `v` faces back towards it.
-    fn inside(&self, v: IVec3) -> bool {
-        let ways = [
-            (IVec3::X, FACES[1]),
-            (IVec3::NEG_X, FACES[0]),
-            (IVec3::Z, FACES[5]),
-            (IVec3::NEG_Z, FACES[4]),
-        ];
-        ways.into_iter().all(|(step, facing_back)| {
-            let mut at = v;
-            while self.grid.contains(at) {
-                let bits = self.grid.get(at);
-                if bits != 0 {
-                    return bits & facing_back != 0;
-                }
-                at += step;
-            }
-            false
         })
     }
 

@@ -8,9 +8,11 @@
 //! triangle's plane (a map's large slanted faces would otherwise visit their whole bounding
 //! boxes). [`fill`] then tests each pair's 512 voxels with the dense surface stage's test in
 //! f32; its twin `shaders/bricks.wgsl` does the same with a workgroup per pair ([`gpu::fill`]).
+//! The inside stage ([`super::brick_inside`]) then runs on the same bricks.
 
 pub mod gpu;
 
+use super::brick_inside::{self, Inside};
 use super::surface::triangle_box_overlap;
 use crate::gpu::Gpu;
 use crate::mesh::Mesh;
@@ -51,6 +53,10 @@ pub struct BrickStats {
     /// Voxels along each axis of the bounds: the dense grid this one stands for.
     pub effective_resolution: [i32; 3],
     pub surface_voxels: usize,
+    /// Voxels of the bricks that the inside stage finds inside the map (absent from reports
+    /// cached before the stage existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inside_voxels: Option<usize>,
 }
 
 pub struct BrickGrid {
@@ -60,11 +66,12 @@ pub struct BrickGrid {
     dims: IVec3,
     index: HashMap<IVec3, u32>,
     bricks: Vec<[u8; BRICK_VOXELS]>,
+    inside: Inside,
 }
 
 impl BrickGrid {
     /// The surface voxels of `mesh` at `voxel_size`, with a voxel of padding around its bounds,
-    /// on `gpu` when one is given. Refuses a size that would need more than [`MAX_BRICKS`]
+    /// and which voxels lie inside the map, on `gpu` when one is given. Refuses a size that would need more than [`MAX_BRICKS`]
     /// bricks, estimated from the surface's area before anything is allocated, or more than
     /// [`MAX_SIDE`] voxels along a side.
     pub fn voxelize(mesh: &Mesh, voxel_size: f64, gpu: Option<&Gpu>) -> Result<BrickGrid, String> {
@@ -96,21 +103,37 @@ impl BrickGrid {
             Some(gpu) => gpu::fill(gpu, &work).map_err(|e| e.to_string())?,
             None => fill(&work),
         };
-        let mut grid = BrickGrid {
+        // The coarse test's margin leaves some bricks with no voxel touched.
+        let (coords, bricks): (Vec<IVec3>, Vec<[u8; BRICK_VOXELS]>) = work
+            .bricks
+            .iter()
+            .zip(filled)
+            .filter(|(_, voxels)| voxels.iter().any(|&v| v != 0))
+            .map(|(&brick, voxels)| (brick, voxels))
+            .unzip();
+        let inside = match gpu {
+            Some(gpu) => brick_inside::build(
+                &coords,
+                &bricks,
+                |surface| brick_inside::gpu::entries(gpu, surface),
+                |surface, beyond| brick_inside::gpu::classify(gpu, surface, beyond),
+            )
+            .map_err(|e| e.to_string())?,
+            None => brick_inside::build(
+                &coords,
+                &bricks,
+                |surface| Ok::<_, String>(brick_inside::entries(surface)),
+                |surface, beyond| Ok(brick_inside::classify(surface, beyond)),
+            )?,
+        };
+        Ok(BrickGrid {
             origin,
             voxel_size,
             dims: span.as_ivec3(),
-            index: HashMap::new(),
-            bricks: Vec::new(),
-        };
-        // The coarse test's margin leaves some bricks with no voxel touched.
-        for (&brick, voxels) in work.bricks.iter().zip(filled) {
-            if voxels.iter().any(|&v| v != 0) {
-                grid.index.insert(brick, grid.bricks.len() as u32);
-                grid.bricks.push(voxels);
-            }
-        }
-        Ok(grid)
+            index: coords.into_iter().enumerate().map(|(b, c)| (c, b as u32)).collect(),
+            bricks,
+            inside,
+        })
     }
 
     /// The surface bits of voxel `v`: 0 where no surface is, and off the grid.
@@ -118,6 +141,15 @@ impl BrickGrid {
         self.index
             .get(&v.div_euclid(IVec3::splat(BRICK)))
             .map_or(0, |&b| self.bricks[b as usize][offset(v)])
+    }
+
+    /// Whether voxel `v` lies inside the map: along each of ±x and ±z, the first surface met
+    /// faces back towards it. Off the grid, no way meets a surface.
+    pub fn inside(&self, v: IVec3) -> bool {
+        self.contains(v)
+            && self
+                .inside
+                .holds(v, self.index.get(&v.div_euclid(IVec3::splat(BRICK))).copied())
     }
 
     pub fn dims(&self) -> IVec3 {
@@ -157,10 +189,11 @@ impl BrickGrid {
         let entry = std::mem::size_of::<(IVec3, u32)>() + 1;
         BrickStats {
             bricks: self.bricks.len(),
-            bytes: self.bricks.len() * BRICK_VOXELS + self.index.capacity() * entry,
+            bytes: self.bricks.len() * BRICK_VOXELS + self.index.capacity() * entry + self.inside.bytes(),
             voxel_size: self.voxel_size,
             effective_resolution: (self.dims - 2).max(IVec3::ONE).to_array(),
             surface_voxels: self.bricks.iter().flatten().filter(|&&b| b != 0).count(),
+            inside_voxels: Some(self.inside.voxels_in_bricks()),
         }
     }
 }

@@ -4,6 +4,7 @@
 //! winding and cpsv stages have GPU twins, each in its stage's `gpu` module beside it; given a
 //! device, these functions run those.
 
+pub mod brick_inside;
 pub mod bricks;
 pub mod columns;
 pub mod cpsv;

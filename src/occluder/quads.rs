@@ -217,7 +217,9 @@ impl Polygon {
         Polygon { corners, len: 3 }
     }
 
-    /// The part with coordinate `k` in the closed range `bounds`, if any.
+    /// The part with coordinate `k` in the closed range `bounds`, if any. Inlined, so that each
+    /// caller's axis `k` is a constant in the clipping loops.
+    #[inline(always)]
     fn clip(&self, k: usize, bounds: [f64; 2]) -> Option<Polygon> {
         let lower = self.clip_side(k, bounds[0], true)?;
         lower.clip_side(k, bounds[1], false)
@@ -225,6 +227,7 @@ impl Polygon {
 
     /// The part on one side of coordinate `k` = `bound`: where it is at least `bound` when
     /// `above`, else at most.
+    #[inline(always)]
     fn clip_side(&self, k: usize, bound: f64, above: bool) -> Option<Polygon> {
         let keeps = |p: &[f64; 3]| if above { p[k] >= bound } else { p[k] <= bound };
         let corners = &self.corners[..self.len];

@@ -106,6 +106,40 @@ fn fill(
     if area == 0.0 || !area.is_finite() {
         return;
     }
+    let span = Span {
+        x: (x0, x1),
+        y: (y0, y1),
+    };
+    match coverage {
+        Coverage::Whole => fill_whole(view, p, area, span, depth, visit),
+        Coverage::Centres => fill_centres(view, p, area, [false; 3], span, depth, visit),
+        Coverage::Eroded(eroded) => fill_centres(view, p, area, eroded, span, depth, visit),
+    }
+}
+
+/// The first and last pixel along x and along y that a triangle's samples may cover.
+#[derive(Clone, Copy)]
+struct Span {
+    x: (usize, usize),
+    y: (usize, usize),
+}
+
+/// The value of `p`'s third coordinate at barycentric weights `w`.
+fn interpolate(p: &[DVec3; 3], w: [f64; 3]) -> f64 {
+    w[0] * p[0].z + w[1] * p[1].z + w[2] * p[2].z
+}
+
+/// [`Coverage::Whole`]: the pixels whose four corners the triangle covers, at the farthest
+/// depth of the corners.
+fn fill_whole(
+    view: &View,
+    p: [DVec3; 3],
+    area: f64,
+    span: Span,
+    depth: impl Fn(f64) -> f64,
+    visit: &mut impl FnMut(usize, f64),
+) {
+    let q = p.map(|v| v.truncate());
     let weights = |c: DVec2| {
         [
             cross(q[2] - q[1], c - q[1]) / area,
@@ -113,41 +147,48 @@ fn fill(
             cross(q[1] - q[0], c - q[0]) / area,
         ]
     };
-    let value = |w: [f64; 3]| w[0] * p[0].z + w[1] * p[1].z + w[2] * p[2].z;
-    if coverage == Coverage::Whole {
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let (x_f, y_f) = (x as f64, y as f64);
-                let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
-                    .map(|(dx, dy)| weights(DVec2::new(x_f + dx, y_f + dy)));
-                if corners.iter().flatten().all(|&v| v >= 0.0) {
-                    let farthest = corners
-                        .iter()
-                        .map(|&w| depth(value(w)))
-                        .fold(f64::NEG_INFINITY, f64::max);
-                    visit(y * view.pixels + x, farthest);
-                }
+    for y in span.y.0..=span.y.1 {
+        for x in span.x.0..=span.x.1 {
+            let (x_f, y_f) = (x as f64, y as f64);
+            let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                .map(|(dx, dy)| weights(DVec2::new(x_f + dx, y_f + dy)));
+            if corners.iter().flatten().all(|&v| v >= 0.0) {
+                let farthest = corners
+                    .iter()
+                    .map(|&w| depth(interpolate(&p, w)))
+                    .fold(f64::NEG_INFINITY, f64::max);
+                visit(y * view.pixels + x, farthest);
             }
         }
-        return;
     }
+}
+
+/// [`Coverage::Centres`] and [`Coverage::Eroded`]: the pixels whose centres the triangle
+/// covers, and whose squares lie wholly inside the edges flagged in `eroded`.
+fn fill_centres(
+    view: &View,
+    p: [DVec3; 3],
+    area: f64,
+    eroded: [bool; 3],
+    span: Span,
+    depth: impl Fn(f64) -> f64,
+    visit: &mut impl FnMut(usize, f64),
+) {
+    let q = p.map(|v| v.truncate());
     // How far inside each edge a pixel centre must be, as a weight, for the pixel's square to be:
     // across the square, the edge's function changes by half the sum of its |dx| and |dy|.
-    let insets: [f64; 3] = match coverage {
-        Coverage::Eroded(eroded) => std::array::from_fn(|k| {
-            let edge = q[(k + 2) % 3] - q[(k + 1) % 3];
-            if eroded[k] {
-                0.5 * (edge.x.abs() + edge.y.abs()) / area.abs()
-            } else {
-                0.0
-            }
-        }),
-        _ => [0.0; 3],
-    };
+    let insets: [f64; 3] = std::array::from_fn(|k| {
+        let edge = q[(k + 2) % 3] - q[(k + 1) % 3];
+        if eroded[k] {
+            0.5 * (edge.x.abs() + edge.y.abs()) / area.abs()
+        } else {
+            0.0
+        }
+    });
     // Edge k's function f at a centre c is `cross(q[k + 2] - q[k + 1], c - q[k + 1])`, computed
-    // as `weights` does, so that the pixels and depths are the same to the bit. Its weight
-    // f / area is at least 0 exactly where f has the area's sign, so only the pixels drawn pay
-    // for the divisions.
+    // in the same operations as `fill_whole`'s weights, so that the pixels and depths are those
+    // of the pixel-by-pixel test to the bit. Its weight f / area is at least 0 exactly where f
+    // has the area's sign, so only the pixels drawn pay for the divisions.
     let edges = [(q[2] - q[1], q[1]), (q[0] - q[2], q[2]), (q[1] - q[0], q[0])];
     let holds = |k: usize, f: f64| match insets[k] {
         0.0 if area > 0.0 => f >= 0.0,
@@ -159,7 +200,8 @@ fn fill(
     // pixels drawn starts where the last rising edge holds, found by bisection, and ends where
     // an edge stops holding.
     let rising = edges.map(|(e, _)| e.y * area < 0.0);
-    for y in y0..=y1 {
+    let (x0, x1) = span.x;
+    for y in span.y.0..=span.y.1 {
         let centre_y = y as f64 + 0.5;
         let rows = edges.map(|(e, o)| e.x * (centre_y - o.y));
         let function = |k: usize, x: usize| rows[k] - edges[k].0.y * ((x as f64 + 0.5) - edges[k].1.x);
@@ -177,7 +219,7 @@ fn fill(
             if !(0..3).all(|k| holds(k, f[k])) {
                 break;
             }
-            visit(y * view.pixels + x, depth(value(f.map(|f| f / area))));
+            visit(y * view.pixels + x, depth(interpolate(&p, f.map(|f| f / area))));
         }
     }
 }

@@ -15,7 +15,8 @@
 
 pub mod gpu;
 
-use super::bricks::{BRICK, BRICK_VOXELS, FACES};
+use super::bricks::{BRICK, BRICK_VOXELS, FACES, offset};
+use crate::gpu::{Gpu, GpuError};
 use glam::IVec3;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -53,11 +54,11 @@ impl Inside {
     /// Whether voxel `v` is inside, where `brick` is the index of its brick (None: a brick with
     /// no surface).
     pub fn holds(&self, v: IVec3, brick: Option<u32>) -> bool {
-        let local = v.rem_euclid(IVec3::splat(BRICK));
         if let Some(b) = brick {
-            let i = voxel_index(local);
+            let i = offset(v);
             return self.bits[b as usize][i / 64] >> (i % 64) & 1 == 1;
         }
+        let local = v.rem_euclid(IVec3::splat(BRICK));
         (0..WAYS).all(|way| {
             let (key, at) = line_place(way, v.div_euclid(IVec3::splat(BRICK)));
             let Some(line) = self.lines[way / 2].get(&key) else {
@@ -86,17 +87,18 @@ impl Inside {
     }
 }
 
-/// The whole stage for the bricks at `coords` with surface bytes `surface`, its two per-brick
-/// steps run by `entries` and `classify` (the CPU twins or the GPU's).
-pub fn build<E>(
-    coords: &[IVec3],
-    surface: &[[u8; BRICK_VOXELS]],
-    entries: impl FnOnce(&[[u8; BRICK_VOXELS]]) -> Result<Vec<Rows>, E>,
-    classify: impl FnOnce(&[[u8; BRICK_VOXELS]], &[Rows]) -> Result<Vec<Bits>, E>,
-) -> Result<Inside, E> {
-    let own = entries(surface)?;
+/// The whole stage for the bricks at `coords` with surface bytes `surface`, its per-brick
+/// steps on `gpu` when one is given.
+pub fn build(coords: &[IVec3], surface: &[[u8; BRICK_VOXELS]], gpu: Option<&Gpu>) -> Result<Inside, GpuError> {
+    let own = match gpu {
+        Some(gpu) => gpu::entries(gpu, surface)?,
+        None => entries(surface),
+    };
     let (lines, beyond) = link(coords, &own);
-    let bits = classify(surface, &beyond)?;
+    let bits = match gpu {
+        Some(gpu) => gpu::classify(gpu, surface, &beyond)?,
+        None => classify(surface, &beyond),
+    };
     let entries = own
         .iter()
         .zip(&beyond)
@@ -203,11 +205,6 @@ fn march(voxels: &[u8; BRICK_VOXELS], way: usize, row: usize, mut met: u8, mut v
         visit(i, met);
     }
     met
-}
-
-/// A voxel's place in its brick (x fastest, then y, then z).
-fn voxel_index(local: IVec3) -> usize {
-    (local.x + BRICK * (local.y + BRICK * local.z)) as usize
 }
 
 /// The row of `way` that holds the voxel at `local` in its brick.

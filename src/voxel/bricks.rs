@@ -71,9 +71,9 @@ pub struct BrickGrid {
 
 impl BrickGrid {
     /// The surface voxels of `mesh` at `voxel_size`, with a voxel of padding around its bounds,
-    /// and which voxels lie inside the map, on `gpu` when one is given. Refuses a size that would need more than [`MAX_BRICKS`]
-    /// bricks, estimated from the surface's area before anything is allocated, or more than
-    /// [`MAX_SIDE`] voxels along a side.
+    /// and which voxels lie inside the map, on `gpu` when one is given. Refuses a size that
+    /// would need more than [`MAX_BRICKS`] bricks, estimated from the surface's area before
+    /// anything is allocated, or more than [`MAX_SIDE`] voxels along a side.
     pub fn voxelize(mesh: &Mesh, voxel_size: f64, gpu: Option<&Gpu>) -> Result<BrickGrid, String> {
         let (lo, hi) = mesh.bounds();
         let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
@@ -111,21 +111,7 @@ impl BrickGrid {
             .filter(|(_, voxels)| voxels.iter().any(|&v| v != 0))
             .map(|(&brick, voxels)| (brick, voxels))
             .unzip();
-        let inside = match gpu {
-            Some(gpu) => brick_inside::build(
-                &coords,
-                &bricks,
-                |surface| brick_inside::gpu::entries(gpu, surface),
-                |surface, beyond| brick_inside::gpu::classify(gpu, surface, beyond),
-            )
-            .map_err(|e| e.to_string())?,
-            None => brick_inside::build(
-                &coords,
-                &bricks,
-                |surface| Ok::<_, String>(brick_inside::entries(surface)),
-                |surface, beyond| Ok(brick_inside::classify(surface, beyond)),
-            )?,
-        };
+        let inside = brick_inside::build(&coords, &bricks, gpu).map_err(|e| e.to_string())?;
         Ok(BrickGrid {
             origin,
             voxel_size,
@@ -199,7 +185,7 @@ impl BrickGrid {
 }
 
 /// Voxel `v`'s place in its brick: x fastest, then y, then z (as the shader writes them).
-fn offset(v: IVec3) -> usize {
+pub(super) fn offset(v: IVec3) -> usize {
     let l = v.rem_euclid(IVec3::splat(BRICK));
     (l.x + BRICK * (l.y + BRICK * l.z)) as usize
 }

@@ -15,10 +15,7 @@ pub fn entries(gpu: &Gpu, surface: &[[u8; BRICK_VOXELS]]) -> Result<Vec<Rows>, G
         let rows = gpu.zeroed((chunk.len() * ROWS * WAYS) as u64);
         gpu.run(|gpu| {
             dispatch(gpu, "entries", chunk, &rows, None);
-            let bytes: Vec<u8> = gpu.read(&rows)?;
-            out.extend(bytes.chunks_exact(ROWS * WAYS).map(|brick| {
-                std::array::from_fn(|row| brick[row * WAYS..(row + 1) * WAYS].try_into().expect("a row's ways"))
-            }));
+            out.extend(gpu.read::<Rows>(&rows)?);
             Ok(())
         })?;
     }
@@ -34,12 +31,7 @@ pub fn classify(gpu: &Gpu, surface: &[[u8; BRICK_VOXELS]], beyond: &[Rows]) -> R
         let inside = gpu.zeroed((chunk.len() * BRICK_VOXELS / 8) as u64);
         gpu.run(|gpu| {
             dispatch(gpu, "classify", chunk, &rows, Some(&inside));
-            let words: Vec<u64> = gpu.read(&inside)?;
-            out.extend(
-                words
-                    .chunks_exact(BRICK_VOXELS / 64)
-                    .map(|b| Bits::try_from(b).expect("a brick's bits")),
-            );
+            out.extend(gpu.read::<Bits>(&inside)?);
             Ok(())
         })?;
     }

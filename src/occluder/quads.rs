@@ -398,10 +398,11 @@ impl Planes {
     fn search(&mut self, i: usize) {
         let row_words = self.row_words;
         let plane = &mut self.list[i];
-        let open = &plane.open;
-        match open_bounds(open, row_words) {
+        match open_bounds(&plane.open, row_words) {
             None => plane.sweep = None,
             Some((lo, hi)) => {
+                // From a whole word, so that the sweep reads the bits as they lie.
+                let lo = [lo[0], lo[1] / 64 * 64];
                 let (rows, columns) = (hi[0] + 1 - lo[0], hi[1] + 1 - lo[1]);
                 if plane
                     .sweep
@@ -414,12 +415,9 @@ impl Planes {
             }
         }
         plane.best = plane.sweep.as_mut().and_then(|([u0, v0], sweep)| {
-            let is_open = |u: usize, v: usize| {
-                let (u, v) = (u + *u0, v + *v0);
-                open[u * row_words + v / 64] >> (v % 64) & 1 == 1
-            };
+            let first = *u0 * row_words + *v0 / 64;
             sweep
-                .run(plane.dirty_from, is_open)
+                .run(plane.dirty_from, &plane.open[first..], row_words)
                 .filter(|r| r.cells() >= MIN_CELLS)
                 .map(|r| CellRect {
                     u: r.u.map(|u| u + *u0),

@@ -19,36 +19,76 @@ impl CellRect {
 
 /// The largest rectangle of true cells at least `min_side` cells wide each way, if any.
 pub fn largest(mask: &[bool], nu: usize, nv: usize, min_side: usize) -> Option<CellRect> {
-    Sweep::new(nu, nv, min_side).run(0, |u, v| mask[u * nv + v])
+    let words = nv.div_ceil(64);
+    let mut bits = vec![0u64; nu * words];
+    for (c, _) in mask.iter().enumerate().filter(|(_, open)| **open) {
+        let (u, v) = (c / nv, c % nv);
+        bits[u * words + v / 64] |= 1 << (v % 64);
+    }
+    Sweep::new(nu, nv, min_side).run(0, &bits, words)
 }
 
 /// The histogram method's pass over row `u`: the rectangles that end on it, each as tall as a
 /// column's height and as wide as the columns around it at least as high, replace `best` when
-/// larger (so the first found of the largest size stays).
-fn pop_row(u: usize, heights: &[u32], min_side: usize, stack: &mut Vec<usize>, best: &mut Option<CellRect>) {
+/// larger (so the first found of the largest size stays). `live` has a bit for each column at
+/// least `min_side` high; the others bound rectangles as an empty column does, since none
+/// that holds them is tall enough, so runs of them are skipped a word at a time.
+fn pop_row(
+    u: usize,
+    heights: &[u32],
+    live: &[u64],
+    min_side: usize,
+    stack: &mut Vec<usize>,
+    best: &mut Option<CellRect>,
+) {
     let nv = heights.len();
     stack.clear();
-    for v in 0..=nv {
-        let h = if v < nv { heights[v] } else { 0 };
+    // The first column after the last one too low; where a rectangle with nothing left of it
+    // on the stack begins. While the stack is empty it is `v`.
+    let mut floor = 0;
+    let mut v = 0;
+    while v <= nv {
+        if stack.is_empty() {
+            match next_bit(live, v) {
+                Some(next) if next < nv => (floor, v) = (next, next),
+                _ => return,
+            }
+        }
+        let h = heights.get(v).copied().filter(|&h| h as usize >= min_side).unwrap_or(0);
         while let Some(&top) = stack.last() {
             if heights[top] <= h {
                 break;
             }
             stack.pop();
-            let left = stack.last().map_or(0, |&s| s + 1);
+            let left = stack.last().map_or(floor, |&s| s + 1);
             let height = heights[top] as usize;
             let rect = CellRect {
                 u: [u + 1 - height, u + 1],
                 v: [left, v],
             };
             // Every rectangle lies in one of these maximal ones, with sides at least as long.
-            let wide_enough = height >= min_side && v - left >= min_side;
-            if wide_enough && best.is_none_or(|b| rect.cells() > b.cells()) {
+            if v - left >= min_side && best.is_none_or(|b| rect.cells() > b.cells()) {
                 *best = Some(rect);
             }
         }
-        stack.push(v);
+        if h == 0 {
+            floor = v + 1;
+        } else {
+            stack.push(v);
+        }
+        v += 1;
     }
+}
+
+/// The first set bit at or after `v`.
+fn next_bit(bits: &[u64], v: usize) -> Option<usize> {
+    let (first, shift) = (v / 64, v % 64);
+    let word = *bits.get(first)? >> shift << shift;
+    if word != 0 {
+        return Some(first * 64 + word.trailing_zeros() as usize);
+    }
+    let k = bits[first + 1..].iter().position(|&w| w != 0)?;
+    Some((first + 1 + k) * 64 + bits[first + 1 + k].trailing_zeros() as usize)
 }
 
 /// [`largest`] kept row by row, for a mask whose cells only ever close: after cells close
@@ -56,21 +96,30 @@ fn pop_row(u: usize, heights: &[u32], min_side: usize, stack: &mut Vec<usize>, b
 /// would, the same rectangle included.
 pub struct Sweep {
     nv: usize,
+    words: usize,
     min_side: usize,
     /// Each row's column heights, `nv` a row.
     heights: Vec<u32>,
     /// The best rectangle ending on or before each row.
     best: Vec<Option<CellRect>>,
+    /// The rows whose open cells the next row holds too: each of their rectangles grows into a
+    /// larger one that ends on the next row, so they were not searched.
+    skipped: Vec<bool>,
+    live: Vec<u64>,
     stack: Vec<usize>,
 }
 
 impl Sweep {
     pub fn new(nu: usize, nv: usize, min_side: usize) -> Sweep {
+        let words = nv.div_ceil(64);
         Sweep {
             nv,
+            words,
             min_side,
             heights: vec![0; nu * nv],
             best: vec![None; nu],
+            skipped: vec![false; nu],
+            live: vec![0; words],
             stack: Vec::with_capacity(nv + 1),
         }
     }
@@ -80,25 +129,45 @@ impl Sweep {
         self.heights.len()
     }
 
-    /// The largest rectangle of the cells for which `open(u, v)` holds, sweeping again from
-    /// row `from`: rows before it must be as the last run saw them.
-    pub fn run(&mut self, from: usize, open: impl Fn(usize, usize) -> bool) -> Option<CellRect> {
-        let (nv, nu) = (self.nv, self.best.len());
+    /// The largest rectangle of the open cells, sweeping again from row `from`: rows before it
+    /// must be as the last run saw them. Cell (u, v) is open when bit v % 64 of
+    /// `open[u * stride + v / 64]` is set.
+    pub fn run(&mut self, from: usize, open: &[u64], stride: usize) -> Option<CellRect> {
+        let (nv, nu, words) = (self.nv, self.best.len(), self.words);
+        let row_bits = |u: usize| &open[u * stride..u * stride + words];
+        // A skipped row's rectangles may no longer grow into the changed row after it.
+        let from = from.min(nu);
+        let from = if from > 0 && self.skipped[from - 1] {
+            from - 1
+        } else {
+            from
+        };
         for u in from..nu {
             let (done, rest) = self.heights.split_at_mut(u * nv);
             let row = &mut rest[..nv];
             // The row above; none on the first.
             let above = &done[done.len().saturating_sub(nv)..];
+            let bits = row_bits(u);
             for (v, h) in row.iter_mut().enumerate() {
-                *h = if open(u, v) {
-                    above.get(v).copied().unwrap_or(0) + 1
-                } else {
-                    0
-                };
+                let is_open = (bits[v / 64] >> (v % 64) & 1) as u32;
+                *h = (above.get(v).copied().unwrap_or(0) + 1) * is_open;
             }
-            let mut best = if u > 0 { self.best[u - 1] } else { None };
-            pop_row(u, row, self.min_side, &mut self.stack, &mut best);
-            self.best[u] = best;
+            let best = if u > 0 { self.best[u - 1] } else { None };
+            self.skipped[u] = u + 1 < nu && bits.iter().zip(row_bits(u + 1)).all(|(a, b)| a & !b == 0);
+            self.best[u] = if self.skipped[u] || u + 1 < self.min_side {
+                best
+            } else {
+                // Columns at least `min_side` high: open on the last `min_side` rows.
+                self.live.copy_from_slice(bits);
+                for k in 1..self.min_side {
+                    for (live, word) in self.live.iter_mut().zip(row_bits(u - k)) {
+                        *live &= word;
+                    }
+                }
+                let mut best = best;
+                pop_row(u, row, &self.live, self.min_side, &mut self.stack, &mut best);
+                best
+            };
         }
         self.best.last().copied().flatten()
     }
@@ -107,6 +176,17 @@ impl Sweep {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn bits(mask: &[bool], nu: usize, nv: usize) -> Vec<u64> {
+        let words = nv.div_ceil(64);
+        let mut bits = vec![0u64; nu * words];
+        for u in 0..nu {
+            for v in (0..nv).filter(|&v| mask[u * nv + v]) {
+                bits[u * words + v / 64] |= 1 << (v % 64);
+            }
+        }
+        bits
+    }
 
     /// The largest rectangle by trying every one.
     fn brute_force(mask: &[bool], nu: usize, nv: usize, min_side: usize) -> usize {
@@ -154,7 +234,7 @@ mod tests {
             let (nu, nv) = (rng.usize(1..12), rng.usize(1..12));
             let mut mask: Vec<bool> = (0..nu * nv).map(|_| rng.f64() < 0.8).collect();
             let mut sweep = Sweep::new(nu, nv, 2);
-            let mut found = sweep.run(0, |u, v| mask[u * nv + v]);
+            let mut found = sweep.run(0, &bits(&mask, nu, nv), nv.div_ceil(64));
             for _ in 0..5 {
                 assert_eq!(found, largest(&mask, nu, nv, 2));
                 let (u, v) = (rng.usize(0..nu), rng.usize(0..nv));
@@ -162,7 +242,7 @@ mod tests {
                 for k in u..u + rows {
                     mask[k * nv + v] = false;
                 }
-                found = sweep.run(u, |u, v| mask[u * nv + v]);
+                found = sweep.run(u, &bits(&mask, nu, nv), nv.div_ceil(64));
             }
         }
     }

@@ -47,18 +47,21 @@ fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, mut visit: 
             // Clip to the near plane in front of the eye; 1/z is what varies linearly on screen.
             let near = view.depth_tolerance();
             let z = tri.map(|v| -(v - eye).dot(view.dir));
-            let mut poly: Vec<DVec3> = Vec::with_capacity(4);
+            // A triangle clipped by one plane has at most four corners.
+            let (mut poly, mut corners) = ([DVec3::ZERO; 4], 0);
             for k in 0..3 {
                 let (a, b) = (k, (k + 1) % 3);
                 if z[a] >= near {
-                    poly.push(tri[a]);
+                    poly[corners] = tri[a];
+                    corners += 1;
                 }
                 if (z[a] >= near) != (z[b] >= near) {
                     let s = (near - z[a]) / (z[b] - z[a]);
-                    poly.push(tri[a] + (tri[b] - tri[a]) * s);
+                    poly[corners] = tri[a] + (tri[b] - tri[a]) * s;
+                    corners += 1;
                 }
             }
-            for k in 1..poly.len().saturating_sub(1) {
+            for k in 1..corners.saturating_sub(1) {
                 let p = [poly[0], poly[k], poly[k + 1]].map(|v| {
                     let q = view.project(v);
                     DVec3::new(q.x, q.y, 1.0 / q.z)
@@ -229,7 +232,7 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
 }
 
 /// Calls `visit(pixel index, depth)` for every pixel centre each triangle of `mesh` covers.
-/// Orthographic views project each vertex once.
+/// Each vertex is projected once.
 pub fn rasterize_mesh(view: &View, mesh: &Mesh, mut visit: impl FnMut(usize, f64)) {
     match view.lens {
         Lens::Orthographic { .. } => {
@@ -245,8 +248,19 @@ pub fn rasterize_mesh(view: &View, mesh: &Mesh, mut visit: impl FnMut(usize, f64
             }
         }
         Lens::Perspective { .. } => {
-            for tri in mesh.triangles_f64() {
-                rasterize(view, &tri, &mut visit);
+            // Each vertex's distance in front of the eye and its screen point with 1/z, as
+            // `rasterize` computes them; only triangles that cross the near plane are clipped.
+            let near = view.depth_tolerance();
+            let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
+            for t in &mesh.triangles {
+                let q = t.map(|i| projected[i as usize]);
+                let in_front = q.iter().filter(|q| q.z >= near).count();
+                if in_front == 3 {
+                    let p = q.map(|q| DVec3::new(q.x, q.y, 1.0 / q.z));
+                    fill(view, p, Coverage::Centres, |w| 1.0 / w, &mut visit);
+                } else if in_front > 0 {
+                    rasterize(view, &t.map(|i| mesh.positions[i as usize].as_dvec3()), &mut visit);
+                }
             }
         }
     }
@@ -373,6 +387,36 @@ mod tests {
             drawn_in_all += fast.len();
         }
         assert!(drawn_in_all > 100_000, "{drawn_in_all}");
+    }
+
+    #[test]
+    fn a_mesh_drawn_from_inside_gives_what_its_triangles_give_one_by_one() {
+        let mut rng = fastrand::Rng::with_seed(3);
+        // Triangles all around the eye: in front, behind, and across its near plane.
+        let mut mesh = Mesh::default();
+        for t in 0..600u32 {
+            let scale = [0.2, 1.0, 4.0][t as usize % 3];
+            for _ in 0..3 {
+                let v = glam::Vec3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5) * scale;
+                mesh.positions.push(v);
+            }
+            mesh.triangles.push([3 * t, 3 * t + 1, 3 * t + 2]);
+        }
+        let (mut drawn, mut crossing) = (0, 0);
+        for view in View::cube_map(DVec3::new(0.01, 0.02, -0.03), 64, 1e-3) {
+            let mut whole = Vec::new();
+            rasterize_mesh(&view, &mesh, |i, d| whole.push((i, d.to_bits())));
+            let mut one_by_one = Vec::new();
+            for tri in mesh.triangles_f64() {
+                rasterize(&view, &tri, |i, d| one_by_one.push((i, d.to_bits())));
+                let near = view.depth_tolerance();
+                let in_front = tri.iter().filter(|&&v| view.project(v).z >= near).count();
+                crossing += usize::from(in_front == 1 || in_front == 2);
+            }
+            assert_eq!(whole, one_by_one);
+            drawn += whole.len();
+        }
+        assert!(drawn > 10_000 && crossing > 100, "{drawn} pixels, {crossing} crossing");
     }
 
     #[test]

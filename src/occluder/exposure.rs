@@ -399,17 +399,20 @@ fn farthest_per_tile(depth: &[f32], n: usize, out: &mut [f32]) {
 }
 
 /// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty), into
-/// `out`.
+/// `out`: the farthest over each row's neighbours, then over those of the rows around.
 fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
+    let mut across = vec![0f32; n * n];
+    for (row, out) in depth.chunks(n).zip(across.chunks_mut(n)) {
+        for (x, far) in out.iter_mut().enumerate() {
+            *far = row[x.saturating_sub(R)..=(x + R).min(n - 1)]
+                .iter()
+                .fold(0f32, |a, &b| a.max(b));
+        }
+    }
     for y in 0..n {
+        let rows = y.saturating_sub(R)..=(y + R).min(n - 1);
         for x in 0..n {
-            let mut far = 0f32;
-            for ny in y.saturating_sub(R)..=(y + R).min(n - 1) {
-                for nx in x.saturating_sub(R)..=(x + R).min(n - 1) {
-                    far = far.max(depth[ny * n + nx]);
-                }
-            }
-            out[y * n + x] = far;
+            out[y * n + x] = rows.clone().map(|ny| across[ny * n + x]).fold(0f32, f32::max);
         }
     }
 }

@@ -144,8 +144,8 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
                 };
                 for v in rv.clone() {
                     let v0 = g.origin[1] + v as f64 * g.cell;
-                    if let Some(cell) = strip.clip(1, [v0, v0 + g.cell]) {
-                        out.push(((u * nv + v) as u32, cell.heights()));
+                    if let Some(heights) = strip.heights_within(1, [v0, v0 + g.cell]) {
+                        out.push(((u * nv + v) as u32, heights));
                     }
                 }
             }
@@ -253,13 +253,27 @@ impl Polygon {
         (out.len > 0).then_some(out)
     }
 
-    /// The lowest and highest t of its corners.
-    fn heights(&self) -> (f64, f64) {
-        let t = self.corners[..self.len].iter().map(|p| p[2]);
-        (
-            t.clone().fold(f64::INFINITY, f64::min),
-            t.fold(f64::NEG_INFINITY, f64::max),
-        )
+    /// The lowest and highest t of the part with coordinate `k` in the closed range `bounds`,
+    /// if any: those of [`Polygon::clip`]'s corners, without building the last clip.
+    #[inline(always)]
+    fn heights_within(&self, k: usize, bounds: [f64; 2]) -> Option<(f64, f64)> {
+        let lower = self.clip_side(k, bounds[0], true)?;
+        let corners = &lower.corners[..lower.len];
+        let keeps = |p: &[f64; 3]| p[k] <= bounds[1];
+        let (mut lo, mut hi, mut any) = (f64::INFINITY, f64::NEG_INFINITY, false);
+        for i in 0..corners.len() {
+            let (a, b) = (corners[i], corners[(i + 1) % corners.len()]);
+            if keeps(&a) {
+                (lo, hi, any) = (lo.min(a[2]), hi.max(a[2]), true);
+            }
+            if keeps(&a) != keeps(&b) {
+                // The corner `clip_side` makes there: its t, computed as it does.
+                let s = (bounds[1] - a[k]) / (b[k] - a[k]);
+                let t = a[2] + s * (b[2] - a[2]);
+                (lo, hi, any) = (lo.min(t), hi.max(t), true);
+            }
+        }
+        any.then_some((lo, hi))
     }
 }
 

@@ -91,6 +91,40 @@ fn next_bit(bits: &[u64], v: usize) -> Option<usize> {
     Some((first + 1 + k) * 64 + bits[first + 1 + k].trailing_zeros() as usize)
 }
 
+/// Each byte's bits as lanes of all ones or zeros, so that eight heights grow at once.
+const BYTE_LANES: [[u32; 8]; 256] = {
+    let mut lanes = [[0; 8]; 256];
+    let mut byte = 0;
+    while byte < 256 {
+        let mut bit = 0;
+        while bit < 8 {
+            lanes[byte][bit] = if byte >> bit & 1 == 1 { u32::MAX } else { 0 };
+            bit += 1;
+        }
+        byte += 1;
+    }
+    lanes
+};
+
+/// A row's column heights from the row above's (none on the first row): one more where the
+/// row's bit is set, else 0.
+fn grow_heights(row: &mut [u32], above: Option<&[u32]>, bits: &[u64]) {
+    const NONE_ABOVE: [u32; 64] = [0; 64];
+    for (k, (heights, word)) in row.chunks_mut(64).zip(bits).enumerate() {
+        let above = above.map_or(&NONE_ABOVE[..heights.len()], |a| &a[64 * k..64 * k + heights.len()]);
+        if *word == 0 {
+            heights.fill(0);
+            continue;
+        }
+        for (b, (heights, above)) in heights.chunks_mut(8).zip(above.chunks(8)).enumerate() {
+            let lanes = &BYTE_LANES[(word >> (8 * b)) as usize & 0xff];
+            for ((h, a), lane) in heights.iter_mut().zip(above).zip(lanes) {
+                *h = (a + 1) & lane;
+            }
+        }
+    }
+}
+
 /// [`largest`] kept row by row, for a mask whose cells only ever close: after cells close
 /// from row `from` on, [`Sweep::run`] redoes only those rows, and finds what a new search
 /// would, the same rectangle included.
@@ -148,10 +182,7 @@ impl Sweep {
             // The row above; none on the first.
             let above = &done[done.len().saturating_sub(nv)..];
             let bits = row_bits(u);
-            for (v, h) in row.iter_mut().enumerate() {
-                let is_open = (bits[v / 64] >> (v % 64) & 1) as u32;
-                *h = (above.get(v).copied().unwrap_or(0) + 1) * is_open;
-            }
+            grow_heights(row, (u > 0).then_some(above), bits);
             let best = if u > 0 { self.best[u - 1] } else { None };
             self.skipped[u] = u + 1 < nu && bits.iter().zip(row_bits(u + 1)).all(|(a, b)| a & !b == 0);
             self.best[u] = if self.skipped[u] || u + 1 < self.min_side {

@@ -47,7 +47,6 @@ const PIXELS: usize = 256;
 /// Pixels per side of the tiles whose farthest depth gives a quick "hidden" answer (TILE in
 /// shaders/exposure.wgsl).
 pub(crate) const TILE: usize = 8;
-const R: usize = 1;
 
 /// Cameras in one opening: at its centre and at points of its rim spread farthest apart.
 const EYES_PER_OPENING: usize = 3;
@@ -389,30 +388,31 @@ impl OpenViews {
 
 /// The farthest depth of each TILE × TILE tile, into `out` (zeroed).
 fn farthest_per_tile(depth: &[f32], n: usize, out: &mut [f32]) {
-    let tiles = n / TILE;
-    for y in 0..n {
-        for x in 0..n {
-            let t = (y / TILE) * tiles + x / TILE;
-            out[t] = out[t].max(depth[y * n + x]);
+    for (y, row) in depth.chunks_exact(n).enumerate() {
+        let tiles = &mut out[(y / TILE) * (n / TILE)..(y / TILE + 1) * (n / TILE)];
+        for (far, pixels) in tiles.iter_mut().zip(row.chunks_exact(TILE)) {
+            *far = pixels.iter().fold(*far, |a, &b| a.max(b));
         }
     }
 }
 
 /// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty), into
-/// `out`: the farthest over each row's neighbours, then over those of the rows around.
+/// `out`: the farthest over each row's neighbours, then over those of the rows around. `n` is at
+/// least 2.
 fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
     let mut across = vec![0f32; n * n];
-    for (row, out) in depth.chunks(n).zip(across.chunks_mut(n)) {
-        for (x, far) in out.iter_mut().enumerate() {
-            *far = row[x.saturating_sub(R)..=(x + R).min(n - 1)]
-                .iter()
-                .fold(0f32, |a, &b| a.max(b));
+    for (row, far) in depth.chunks_exact(n).zip(across.chunks_exact_mut(n)) {
+        far[0] = row[0].max(row[1]).max(0.0);
+        for (x, far) in far[1..n - 1].iter_mut().enumerate() {
+            *far = row[x].max(row[x + 1]).max(row[x + 2]).max(0.0);
         }
+        far[n - 1] = row[n - 2].max(row[n - 1]).max(0.0);
     }
-    for y in 0..n {
-        let rows = y.saturating_sub(R)..=(y + R).min(n - 1);
-        for x in 0..n {
-            out[y * n + x] = rows.clone().map(|ny| across[ny * n + x]).fold(0f32, f32::max);
+    let rows: Vec<&[f32]> = across.chunks_exact(n).collect();
+    for (y, out) in out.chunks_exact_mut(n).enumerate() {
+        let (above, below) = (rows[y.saturating_sub(1)], rows[(y + 1).min(n - 1)]);
+        for (((out, &a), &b), &c) in out.iter_mut().zip(above).zip(rows[y]).zip(below) {
+            *out = a.max(b).max(c);
         }
     }
 }
@@ -573,6 +573,40 @@ mod tests {
     /// Just under the cube's top, beside the middle.
     fn under_the_top() -> Panel {
         panel([[0.45, 0.9, 0.3], [0.499, 0.9, 0.3], [0.499, 0.9, 0.7], [0.45, 0.9, 0.7]])
+    }
+
+    #[test]
+    fn the_farthest_depths_nearby_and_per_tile_are_those_of_each_pixel_s_neighbours() {
+        let n = 4 * TILE;
+        let mut rng = fastrand::Rng::with_seed(5);
+        let depth: Vec<f32> = (0..n * n)
+            .map(|_| {
+                if rng.u8(..) < 40 {
+                    f32::INFINITY
+                } else {
+                    rng.f32() * 3.0
+                }
+            })
+            .collect();
+        let mut nearby = vec![0f32; n * n];
+        farthest_nearby(&depth, n, &mut nearby);
+        let mut tiles = vec![0f32; (n / TILE).pow(2)];
+        farthest_per_tile(&depth, n, &mut tiles);
+        for (y, x) in (0..n).flat_map(|y| (0..n).map(move |x| (y, x))) {
+            let around = |k: usize| k.saturating_sub(1)..=(k + 1).min(n - 1);
+            let depth = &depth;
+            let far = around(y)
+                .flat_map(|ny| around(x).map(move |nx| depth[ny * n + nx]))
+                .fold(0f32, f32::max);
+            assert_eq!(nearby[y * n + x].to_bits(), far.to_bits(), "pixel {x}, {y}");
+            let tile = tiles[(y / TILE) * (n / TILE) + x / TILE];
+            assert!(tile >= depth[y * n + x]);
+        }
+        for (t, &tile) in tiles.iter().enumerate() {
+            let (ty, tx) = (t / (n / TILE), t % (n / TILE));
+            let pixels = (0..TILE).flat_map(|dy| (0..TILE).map(move |dx| (ty * TILE + dy) * n + tx * TILE + dx));
+            assert!(pixels.map(|i| depth[i]).any(|d| d == tile), "tile {t}");
+        }
     }
 
     #[test]

@@ -55,6 +55,8 @@ const OPEN_WINDING: f64 = 0.3;
 /// Cameras in all openings, the largest openings first: each renders five or six faces of a
 /// cube map.
 const MAX_EYES: usize = 24;
+/// Grid corners tested together, view by view.
+const CORNERS_PER_RUN: usize = 2048;
 /// Most cells along a side of a panel cut down to its hidden part.
 const MAX_PART_CELLS: usize = 64;
 
@@ -219,18 +221,35 @@ impl OpenViews {
         Ok(exposed.len())
     }
 
-    /// Of the `needed` grid corners (z fastest), those some view sees.
+    /// Of the `needed` grid corners (z fastest), those some view sees. Runs of nearby corners
+    /// go through the views one view at a time, so that each view's depths stay in cache.
     fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
         let [_, ny, nz] = grid.dims;
-        needed
-            .par_iter()
-            .enumerate()
-            .map(|(c, &needed)| {
-                let (x, y, z) = (c / ((ny + 1) * (nz + 1)), (c / (nz + 1)) % (ny + 1), c % (nz + 1));
-                let p = grid.to_world(DVec3::new(x as f64, y as f64, z as f64));
-                needed && (0..self.views.len()).any(|v| self.sees(v, p))
+        let corners: Vec<usize> = (0..needed.len()).filter(|&c| needed[c]).collect();
+        let seen: Vec<bool> = corners
+            .par_chunks(CORNERS_PER_RUN)
+            .flat_map_iter(|run| {
+                let points: Vec<DVec3> = run
+                    .iter()
+                    .map(|&c| {
+                        let (x, y, z) = (c / ((ny + 1) * (nz + 1)), (c / (nz + 1)) % (ny + 1), c % (nz + 1));
+                        grid.to_world(DVec3::new(x as f64, y as f64, z as f64))
+                    })
+                    .collect();
+                let mut seen = vec![false; run.len()];
+                for v in 0..self.views.len() {
+                    for (seen, &p) in seen.iter_mut().zip(&points) {
+                        *seen = *seen || self.sees(v, p);
+                    }
+                }
+                seen
             })
-            .collect()
+            .collect();
+        let mut all = vec![false; needed.len()];
+        for (&c, &seen) in corners.iter().zip(&seen) {
+            all[c] = seen;
+        }
+        all
     }
 
     /// [`OpenViews::seen_corners`] on the GPU.

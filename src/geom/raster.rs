@@ -43,32 +43,38 @@ enum Coverage {
 fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, mut visit: impl FnMut(usize, f64)) {
     match view.lens {
         Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), coverage, |d| d, &mut visit),
-        Lens::Perspective { eye } => {
-            // Clip to the near plane in front of the eye; 1/z is what varies linearly on screen.
-            let near = view.depth_tolerance();
-            let z = tri.map(|v| -(v - eye).dot(view.dir));
-            // A triangle clipped by one plane has at most four corners.
-            let (mut poly, mut corners) = ([DVec3::ZERO; 4], 0);
-            for k in 0..3 {
-                let (a, b) = (k, (k + 1) % 3);
-                if z[a] >= near {
-                    poly[corners] = tri[a];
-                    corners += 1;
-                }
-                if (z[a] >= near) != (z[b] >= near) {
-                    let s = (near - z[a]) / (z[b] - z[a]);
-                    poly[corners] = tri[a] + (tri[b] - tri[a]) * s;
-                    corners += 1;
-                }
-            }
-            for k in 1..corners.saturating_sub(1) {
-                let p = [poly[0], poly[k], poly[k + 1]].map(|v| {
-                    let q = view.project(v);
-                    DVec3::new(q.x, q.y, 1.0 / q.z)
-                });
-                fill(view, p, coverage, |w| 1.0 / w, &mut visit);
-            }
+        Lens::Perspective { .. } => fill_perspective(view, tri, tri.map(|v| view.project(v)), coverage, &mut visit),
+    }
+}
+
+/// A triangle of a perspective view, `tri` in the world and `q` its corners as
+/// [`View::project`] gives them, clipped to the near plane in front of the eye: 1/z is what
+/// varies linearly on screen.
+fn fill_perspective(
+    view: &View,
+    tri: &[DVec3; 3],
+    q: [DVec3; 3],
+    coverage: Coverage,
+    visit: &mut impl FnMut(usize, f64),
+) {
+    let near = view.depth_tolerance();
+    // A triangle clipped by one plane has at most four corners.
+    let (mut poly, mut corners) = ([DVec3::ZERO; 4], 0);
+    for k in 0..3 {
+        let (a, b) = (k, (k + 1) % 3);
+        if q[a].z >= near {
+            poly[corners] = q[a];
+            corners += 1;
         }
+        if (q[a].z >= near) != (q[b].z >= near) {
+            let s = (near - q[a].z) / (q[b].z - q[a].z);
+            poly[corners] = view.project(tri[a] + (tri[b] - tri[a]) * s);
+            corners += 1;
+        }
+    }
+    for k in 1..corners.saturating_sub(1) {
+        let p = [poly[0], poly[k], poly[k + 1]].map(|q| DVec3::new(q.x, q.y, 1.0 / q.z));
+        fill(view, p, coverage, |w| 1.0 / w, visit);
     }
 }
 
@@ -248,19 +254,16 @@ pub fn rasterize_mesh(view: &View, mesh: &Mesh, mut visit: impl FnMut(usize, f64
             }
         }
         Lens::Perspective { .. } => {
-            // Each vertex's distance in front of the eye and its screen point with 1/z, as
-            // `rasterize` computes them; only triangles that cross the near plane are clipped.
-            let near = view.depth_tolerance();
             let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
             for t in &mesh.triangles {
-                let q = t.map(|i| projected[i as usize]);
-                let in_front = q.iter().filter(|q| q.z >= near).count();
-                if in_front == 3 {
-                    let p = q.map(|q| DVec3::new(q.x, q.y, 1.0 / q.z));
-                    fill(view, p, Coverage::Centres, |w| 1.0 / w, &mut visit);
-                } else if in_front > 0 {
-                    rasterize(view, &t.map(|i| mesh.positions[i as usize].as_dvec3()), &mut visit);
-                }
+                let tri = t.map(|i| mesh.positions[i as usize].as_dvec3());
+                fill_perspective(
+                    view,
+                    &tri,
+                    t.map(|i| projected[i as usize]),
+                    Coverage::Centres,
+                    &mut visit,
+                );
             }
         }
     }

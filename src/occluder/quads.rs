@@ -229,50 +229,45 @@ impl Polygon {
     /// `above`, else at most.
     #[inline(always)]
     fn clip_side(&self, k: usize, bound: f64, above: bool) -> Option<Polygon> {
-        let keeps = |p: &[f64; 3]| if above { p[k] >= bound } else { p[k] <= bound };
-        let corners = &self.corners[..self.len];
-        if corners.iter().all(keeps) {
-            return Some(*self);
-        }
         let mut out = Polygon {
             corners: [[0.0; 3]; 8],
             len: 0,
         };
+        self.clipped_corners(k, bound, above, |p| {
+            out.corners[out.len] = p;
+            out.len += 1;
+        });
+        (out.len > 0).then_some(out)
+    }
+
+    /// Calls `corner` with each corner of [`Polygon::clip_side`]'s part, in order.
+    #[inline(always)]
+    fn clipped_corners(&self, k: usize, bound: f64, above: bool, mut corner: impl FnMut([f64; 3])) {
+        let keeps = |p: &[f64; 3]| if above { p[k] >= bound } else { p[k] <= bound };
+        let corners = &self.corners[..self.len];
         for i in 0..self.len {
             let (a, b) = (corners[i], corners[(i + 1) % self.len]);
             if keeps(&a) {
-                out.corners[out.len] = a;
-                out.len += 1;
+                corner(a);
             }
             if keeps(&a) != keeps(&b) {
                 let s = (bound - a[k]) / (b[k] - a[k]);
-                out.corners[out.len] = std::array::from_fn(|j| if j == k { bound } else { a[j] + s * (b[j] - a[j]) });
-                out.len += 1;
+                corner(std::array::from_fn(|j| {
+                    if j == k { bound } else { a[j] + s * (b[j] - a[j]) }
+                }));
             }
         }
-        (out.len > 0).then_some(out)
     }
 
     /// The lowest and highest t of the part with coordinate `k` in the closed range `bounds`,
     /// if any: those of [`Polygon::clip`]'s corners, without building the last clip.
     #[inline(always)]
     fn heights_within(&self, k: usize, bounds: [f64; 2]) -> Option<(f64, f64)> {
-        let lower = self.clip_side(k, bounds[0], true)?;
-        let corners = &lower.corners[..lower.len];
-        let keeps = |p: &[f64; 3]| p[k] <= bounds[1];
         let (mut lo, mut hi, mut any) = (f64::INFINITY, f64::NEG_INFINITY, false);
-        for i in 0..corners.len() {
-            let (a, b) = (corners[i], corners[(i + 1) % corners.len()]);
-            if keeps(&a) {
-                (lo, hi, any) = (lo.min(a[2]), hi.max(a[2]), true);
-            }
-            if keeps(&a) != keeps(&b) {
-                // The corner `clip_side` makes there: its t, computed as it does.
-                let s = (bounds[1] - a[k]) / (b[k] - a[k]);
-                let t = a[2] + s * (b[2] - a[2]);
-                (lo, hi, any) = (lo.min(t), hi.max(t), true);
-            }
-        }
+        self.clip_side(k, bounds[0], true)?
+            .clipped_corners(k, bounds[1], false, |p| {
+                (lo, hi, any) = (lo.min(p[2]), hi.max(p[2]), true)
+            });
         any.then_some((lo, hi))
     }
 }

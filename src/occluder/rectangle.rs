@@ -19,13 +19,18 @@ impl CellRect {
 
 /// The largest rectangle of true cells at least `min_side` cells wide each way, if any.
 pub fn largest(mask: &[bool], nu: usize, nv: usize, min_side: usize) -> Option<CellRect> {
+    Sweep::new(nu, nv, min_side).run(0, &bit_rows(mask, nu, nv), nv.div_ceil(64))
+}
+
+/// A `nu` × `nv` mask as [`Sweep::run`] reads it: each row's cells as bits, in whole words.
+fn bit_rows(mask: &[bool], nu: usize, nv: usize) -> Vec<u64> {
     let words = nv.div_ceil(64);
     let mut bits = vec![0u64; nu * words];
     for (c, _) in mask.iter().enumerate().filter(|(_, open)| **open) {
         let (u, v) = (c / nv, c % nv);
         bits[u * words + v / 64] |= 1 << (v % 64);
     }
-    Sweep::new(nu, nv, min_side).run(0, &bits, words)
+    bits
 }
 
 /// The histogram method's pass over row `u`: the rectangles that end on it, each as tall as a
@@ -136,9 +141,6 @@ pub struct Sweep {
     heights: Vec<u32>,
     /// The best rectangle ending on or before each row.
     best: Vec<Option<CellRect>>,
-    /// The rows whose open cells the next row holds too: each of their rectangles grows into a
-    /// larger one that ends on the next row, so they were not searched.
-    skipped: Vec<bool>,
     live: Vec<u64>,
     stack: Vec<usize>,
 }
@@ -152,7 +154,6 @@ impl Sweep {
             min_side,
             heights: vec![0; nu * nv],
             best: vec![None; nu],
-            skipped: vec![false; nu],
             live: vec![0; words],
             stack: Vec::with_capacity(nv + 1),
         }
@@ -169,13 +170,8 @@ impl Sweep {
     pub fn run(&mut self, from: usize, open: &[u64], stride: usize) -> Option<CellRect> {
         let (nv, nu, words) = (self.nv, self.best.len(), self.words);
         let row_bits = |u: usize| &open[u * stride..u * stride + words];
-        // A skipped row's rectangles may no longer grow into the changed row after it.
-        let from = from.min(nu);
-        let from = if from > 0 && self.skipped[from - 1] {
-            from - 1
-        } else {
-            from
-        };
+        // The row before may have been skipped for what the changed row held: redo it too.
+        let from = from.min(nu).saturating_sub(1);
         for u in from..nu {
             let (done, rest) = self.heights.split_at_mut(u * nv);
             let row = &mut rest[..nv];
@@ -184,8 +180,10 @@ impl Sweep {
             let bits = row_bits(u);
             grow_heights(row, (u > 0).then_some(above), bits);
             let best = if u > 0 { self.best[u - 1] } else { None };
-            self.skipped[u] = u + 1 < nu && bits.iter().zip(row_bits(u + 1)).all(|(a, b)| a & !b == 0);
-            self.best[u] = if self.skipped[u] || u + 1 < self.min_side {
+            // Each rectangle of a row whose open cells the next row holds too grows into a
+            // larger one ending there: the row need not be searched.
+            let grows_on = u + 1 < nu && bits.iter().zip(row_bits(u + 1)).all(|(a, b)| a & !b == 0);
+            self.best[u] = if grows_on || u + 1 < self.min_side {
                 best
             } else {
                 // Columns at least `min_side` high: open on the last `min_side` rows.
@@ -207,17 +205,6 @@ impl Sweep {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn bits(mask: &[bool], nu: usize, nv: usize) -> Vec<u64> {
-        let words = nv.div_ceil(64);
-        let mut bits = vec![0u64; nu * words];
-        for u in 0..nu {
-            for v in (0..nv).filter(|&v| mask[u * nv + v]) {
-                bits[u * words + v / 64] |= 1 << (v % 64);
-            }
-        }
-        bits
-    }
 
     /// The largest rectangle by trying every one.
     fn brute_force(mask: &[bool], nu: usize, nv: usize, min_side: usize) -> usize {
@@ -265,7 +252,7 @@ mod tests {
             let (nu, nv) = (rng.usize(1..12), rng.usize(1..12));
             let mut mask: Vec<bool> = (0..nu * nv).map(|_| rng.f64() < 0.8).collect();
             let mut sweep = Sweep::new(nu, nv, 2);
-            let mut found = sweep.run(0, &bits(&mask, nu, nv), nv.div_ceil(64));
+            let mut found = sweep.run(0, &bit_rows(&mask, nu, nv), nv.div_ceil(64));
             for _ in 0..5 {
                 assert_eq!(found, largest(&mask, nu, nv, 2));
                 let (u, v) = (rng.usize(0..nu), rng.usize(0..nv));
@@ -273,7 +260,7 @@ mod tests {
                 for k in u..u + rows {
                     mask[k * nv + v] = false;
                 }
-                found = sweep.run(u, &bits(&mask, nu, nv), nv.div_ceil(64));
+                found = sweep.run(u, &bit_rows(&mask, nu, nv), nv.div_ceil(64));
             }
         }
     }

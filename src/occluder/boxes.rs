@@ -42,43 +42,89 @@ pub fn expand(inner: &[bool], dims: [usize; 3], settings: &ExpansionSettings) ->
     let mut claimed = 0usize;
     // Claiming a box only brings the outside nearer, so the distance field is updated with the
     // distance to each new box rather than recomputed.
-    let mut distance = squared_distance_to_outside(inner, dims);
+    let mut distance = Farthest::new(squared_distance_to_outside(inner, dims), dims);
     while free.placed.len() < settings.max_boxes && (claimed as f64) < settings.target_coverage * total as f64 {
-        // The order is total (ties go to the lower index), so the parallel search is deterministic.
-        let Some((seed, _)) = distance
-            .par_iter()
-            .enumerate()
-            .filter(|(_, d)| **d > 0.0)
-            .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
-        else {
+        let Some(seed) = distance.farthest() else {
             break;
         };
         let b = grow(&free, coords(seed, dims));
         if (b.voxels() as f64) < settings.min_box_gain * total as f64 || b.voxels() < settings.min_box_voxels {
             break;
         }
-        lower_to_box(&mut distance, dims, &b);
+        distance.lower_to_box(&b);
         claimed += b.voxels();
         free.placed.push(b);
     }
     free.placed
 }
 
-/// distance = min(distance, squared voxel distance to the nearest voxel of `b`).
-fn lower_to_box(distance: &mut [f32], dims: [usize; 3], b: &VoxelBox) {
-    let gap = |v: usize, k: usize| {
-        let below = b.lo[k].saturating_sub(v);
-        let above = v.saturating_sub(b.hi[k] - 1);
-        (below + above) as f32
-    };
-    distance.par_chunks_mut(dims[2]).enumerate().for_each(|(c, column)| {
-        let (gx, gy) = (gap(c / dims[1], 0), gap(c % dims[1], 1));
-        let base = gx * gx + gy * gy;
-        for (z, d) in column.iter_mut().enumerate() {
-            let gz = gap(z, 2);
-            *d = d.min(base + gz * gz);
+/// The squared distance field, with each column's (x, y) largest value, so that the farthest
+/// voxel is found among the columns and a box lowers only the columns it comes nearer to than
+/// their largest value.
+struct Farthest {
+    distance: Vec<f32>,
+    column_max: Vec<f32>,
+    dims: [usize; 3],
+}
+
+impl Farthest {
+    fn new(distance: Vec<f32>, dims: [usize; 3]) -> Farthest {
+        let column_max = distance.par_chunks(dims[2]).map(largest).collect();
+        Farthest {
+            distance,
+            column_max,
+            dims,
         }
-    });
+    }
+
+    /// The voxel with the largest nonzero distance; ties go to the lower index, so the choice
+    /// does not depend on how the work is split.
+    fn farthest(&self) -> Option<usize> {
+        let (column, &max) = self
+            .column_max
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))?;
+        if max <= 0.0 {
+            return None;
+        }
+        let nz = self.dims[2];
+        let z = self.distance[column * nz..(column + 1) * nz]
+            .iter()
+            .position(|&d| d == max)?;
+        Some(column * nz + z)
+    }
+
+    /// distance = min(distance, squared voxel distance to the nearest voxel of `b`). A column
+    /// no nearer to `b` than its largest value keeps every value.
+    fn lower_to_box(&mut self, b: &VoxelBox) {
+        let dims = self.dims;
+        let gap = |v: usize, k: usize| {
+            let below = b.lo[k].saturating_sub(v);
+            let above = v.saturating_sub(b.hi[k] - 1);
+            (below + above) as f32
+        };
+        self.distance
+            .par_chunks_mut(dims[2])
+            .zip(self.column_max.par_iter_mut())
+            .enumerate()
+            .for_each(|(c, (column, max))| {
+                let (gx, gy) = (gap(c / dims[1], 0), gap(c % dims[1], 1));
+                let base = gx * gx + gy * gy;
+                if *max <= base {
+                    return;
+                }
+                for (z, d) in column.iter_mut().enumerate() {
+                    let gz = gap(z, 2);
+                    *d = d.min(base + gz * gz);
+                }
+                *max = largest(column);
+            });
+    }
+}
+
+fn largest(column: &[f32]) -> f32 {
+    column.iter().copied().fold(0.0, f32::max)
 }
 
 fn coords(index: usize, dims: [usize; 3]) -> [usize; 3] {
@@ -232,5 +278,46 @@ fn grow_axis_order(free: &FreeSpace, mut b: VoxelBox, order: [usize; 3]) -> Voxe
         if !grew {
             return b;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The voxel with the largest nonzero distance, lowest index first, by looking at each.
+    fn farthest_by_scan(distance: &[f32]) -> Option<usize> {
+        distance
+            .iter()
+            .enumerate()
+            .filter(|(_, d)| **d > 0.0)
+            .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
+            .map(|(i, _)| i)
+    }
+
+    #[test]
+    fn the_column_maxima_find_the_farthest_voxel_a_scan_finds_as_boxes_are_claimed() {
+        let mut rng = fastrand::Rng::with_seed(3);
+        let dims = [13, 9, 17];
+        let inner: Vec<bool> = (0..dims.iter().product()).map(|_| rng.f32() < 0.9).collect();
+        let mut field = Farthest::new(squared_distance_to_outside(&inner, dims), dims);
+        let mut claimed = 0;
+        while let Some(seed) = field.farthest() {
+            assert_eq!(Some(seed), farthest_by_scan(&field.distance));
+            let lo = coords(seed, dims);
+            let hi: [usize; 3] = std::array::from_fn(|k| (lo[k] + 1 + rng.usize(0..3)).min(dims[k]));
+            let b = VoxelBox { lo, hi };
+            let mut lowered = field.distance.clone();
+            for (i, d) in lowered.iter_mut().enumerate() {
+                let v = coords(i, dims);
+                let gap = |k: usize| (b.lo[k].saturating_sub(v[k]) + v[k].saturating_sub(b.hi[k] - 1)) as f32;
+                *d = d.min(gap(0) * gap(0) + gap(1) * gap(1) + gap(2) * gap(2));
+            }
+            field.lower_to_box(&b);
+            assert_eq!(field.distance, lowered);
+            claimed += 1;
+        }
+        assert!(claimed > 10, "only {claimed} boxes claimed");
+        assert_eq!(farthest_by_scan(&field.distance), None);
     }
 }

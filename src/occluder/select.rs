@@ -8,7 +8,8 @@ use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::raster::{coverage_mask, draw_coverage};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
-use std::collections::HashMap;
+use std::cmp::Ordering;
+use std::collections::{BinaryHeap, HashMap};
 
 /// Views and pixels of the selection's silhouettes: coarser than `eval`'s, enough to rank boxes.
 const VIEWS: usize = 24;
@@ -115,6 +116,36 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
 /// The nonzero words of a bitmask: (word index, bits).
 type SparseMask = Vec<(u32, u64)>;
 
+/// A sheet in the lazy greedy queue: an upper bound on its new pixels per triangle. The larger
+/// ratio, then the lower index, comes first.
+#[derive(Clone, Copy)]
+struct Bound {
+    ratio: f64,
+    candidate: usize,
+}
+
+impl Ord for Bound {
+    fn cmp(&self, other: &Bound) -> Ordering {
+        self.ratio
+            .total_cmp(&other.ratio)
+            .then(other.candidate.cmp(&self.candidate))
+    }
+}
+
+impl PartialOrd for Bound {
+    fn partial_cmp(&self, other: &Bound) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl PartialEq for Bound {
+    fn eq(&self, other: &Bound) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+
+impl Eq for Bound {}
+
 /// The greedy selection as it goes: candidates are the boxes, then the sheets.
 struct State<'a> {
     boxes: &'a [WorldBox],
@@ -184,31 +215,51 @@ impl State<'_> {
         };
         let ratio = |g: u64, cost: usize| g as f64 / cost.max(1) as f64;
         // (ratio, candidate): the larger ratio, then the lower index, is better.
-        let rank = |a: (f64, usize), b: (f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
+        let rank = |(ratio, candidate): (f64, usize), b: (f64, usize)| {
+            Bound { ratio, candidate }.cmp(&Bound {
+                ratio: b.0,
+                candidate: b.1,
+            })
+        };
         let better = |a: (f64, usize), b: (f64, usize)| rank(a, b).is_gt();
         let first_sheet = self.boxes.len();
-        let mut bounds: Vec<u64> = (first_sheet..self.masks.len()).map(|i| gain(&covered, i)).collect();
+        // Untaken sheets by their bound per triangle, best first: a sheet's key is its bound.
+        let mut queue: BinaryHeap<Bound> = (first_sheet..self.masks.len())
+            .filter(|&i| !taken[i])
+            .map(|i| Bound {
+                ratio: ratio(gain(&covered, i), self.costs[i]),
+                candidate: i,
+            })
+            .collect();
         // The chosen boxes' solid with each box merged in.
         let mut with_box: HashMap<usize, Mesh> = HashMap::new();
         loop {
             let used = self.triangles();
-            let mut sheets: Vec<usize> = (first_sheet..self.masks.len())
-                .filter(|&i| !taken[i] && used + self.costs[i] <= self.max_triangles)
-                .collect();
-            let bound = |bounds: &[u64], i: usize| ratio(bounds[i - first_sheet], self.costs[i]);
-            sheets.sort_by(|&a, &b| bound(&bounds, b).total_cmp(&bound(&bounds, a)).then(a.cmp(&b)));
             let mut best_sheet: Option<(usize, u64, f64)> = None;
-            for i in sheets {
-                if best_sheet.is_some_and(|(b, _, r)| better((r, b), (bound(&bounds, i), i))) {
+            // Sheets weighed or over the budget this round, to go back in the queue after it.
+            let mut aside = Vec::new();
+            while let Some(&top) = queue.peek() {
+                let i = top.candidate;
+                if taken[i] {
+                    queue.pop();
+                    continue;
+                }
+                if used + self.costs[i] > self.max_triangles {
+                    aside.push(queue.pop().expect("peeked"));
+                    continue;
+                }
+                if best_sheet.is_some_and(|(b, _, r)| better((r, b), (top.ratio, i))) {
                     break;
                 }
+                queue.pop();
                 let g = gain(&covered, i);
-                bounds[i - first_sheet] = g;
                 let r = ratio(g, self.costs[i]);
+                aside.push(Bound { ratio: r, candidate: i });
                 if g as f64 >= self.threshold && best_sheet.is_none_or(|(b, _, br)| better((r, i), (br, b))) {
                     best_sheet = Some((i, g, r));
                 }
             }
+            queue.extend(aside);
             let mut ranked_boxes: Vec<(usize, u64)> = (0..first_sheet)
                 .filter(|&i| !taken[i])
                 .map(|i| (i, gain(&covered, i)))

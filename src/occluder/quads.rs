@@ -136,6 +136,11 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
                 out.push(((ru.start * nv + rv.start) as u32, (lo(2), hi(2))));
                 return out;
             }
+            // A cell wholly inside the triangle's footprint takes its heights from the plane;
+            // only one wider than a cell each way can hold one.
+            let footprint = (hi(0) - lo(0) > g.cell && hi(1) - lo(1) > g.cell)
+                .then(|| Footprint::new(&tri))
+                .flatten();
             // Clip to each column's strip once, then the strip to each cell of it.
             for u in ru {
                 let u0 = g.origin[0] + u as f64 * g.cell;
@@ -144,7 +149,12 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
                 };
                 for v in rv.clone() {
                     let v0 = g.origin[1] + v as f64 * g.cell;
-                    if let Some(heights) = strip.heights_within(1, [v0, v0 + g.cell]) {
+                    let cell = [[u0, u0 + g.cell], [v0, v0 + g.cell]];
+                    let heights = match footprint.as_ref().and_then(|f| f.heights_over(cell)) {
+                        Some(heights) => Some(heights),
+                        None => strip.heights_within(1, cell[1]),
+                    };
+                    if let Some(heights) = heights {
                         out.push(((u * nv + v) as u32, heights));
                     }
                 }
@@ -200,6 +210,51 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
             gaps
         })
         .collect()
+}
+
+/// A triangle in (u, v, t) seen along t: its edges' functions and its plane.
+struct Footprint {
+    /// Per edge, (a, b, c) with a·u + b·v + c ≥ 0 on the triangle's side.
+    edges: [[f64; 3]; 3],
+    /// t = plane[2] + plane[3]·(u - plane[0]) + plane[4]·(v - plane[1]): about a corner, so
+    /// that far from the origin no large terms cancel.
+    plane: [f64; 5],
+}
+
+impl Footprint {
+    /// None when the triangle is edge-on along t.
+    fn new(tri: &[[f64; 3]; 3]) -> Option<Footprint> {
+        let [p, q, r] = tri.map(DVec3::from_array);
+        let normal = (q - p).cross(r - p);
+        if normal.z == 0.0 || !normal.is_finite() {
+            return None;
+        }
+        let side = normal.z.signum();
+        let edges = [(p, q), (q, r), (r, p)].map(|(a, b)| {
+            let (du, dv) = (b.x - a.x, b.y - a.y);
+            [-dv * side, du * side, (dv * a.x - du * a.y) * side]
+        });
+        let plane = [p.x, p.y, p.z, -normal.x / normal.z, -normal.y / normal.z];
+        Some(Footprint { edges, plane })
+    }
+
+    /// The lowest and highest t over `cell` ([u range, v range]) when the footprint holds the
+    /// whole cell: the plane's at its corners.
+    fn heights_over(&self, cell: [[f64; 2]; 2]) -> Option<(f64, f64)> {
+        let corners = [
+            (cell[0][0], cell[1][0]),
+            (cell[0][1], cell[1][0]),
+            (cell[0][0], cell[1][1]),
+            (cell[0][1], cell[1][1]),
+        ];
+        let holds = |(u, v): (f64, f64)| self.edges.iter().all(|e| e[0] * u + e[1] * v + e[2] >= 0.0);
+        if !corners.iter().all(|&c| holds(c)) {
+            return None;
+        }
+        let [u0, v0, t0, du, dv] = self.plane;
+        let t = corners.map(|(u, v)| t0 + du * (u - u0) + dv * (v - v0));
+        Some((t.into_iter().fold(f64::INFINITY, f64::min), t.into_iter().fold(f64::NEG_INFINITY, f64::max)))
+    }
 }
 
 /// A convex polygon in (u, v, t), clipped by Sutherland–Hodgman: a triangle clipped by four

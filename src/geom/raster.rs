@@ -40,23 +40,61 @@ enum Coverage {
     Eroded([bool; 3]),
 }
 
-fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, mut visit: impl FnMut(usize, f64)) {
+fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, visit: impl FnMut(usize, f64)) {
+    let mut pixels = EachPixel(visit);
     match view.lens {
-        Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), coverage, |d| d, &mut visit),
-        Lens::Perspective { .. } => fill_perspective(view, tri, tri.map(|v| view.project(v)), coverage, &mut visit),
+        Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), coverage, |d| d, &mut pixels),
+        Lens::Perspective { .. } => fill_perspective(view, tri, tri.map(|v| view.project(v)), coverage, &mut pixels),
+    }
+}
+
+/// Where a fill's pixels go: runs of pixels along a row, each pixel's depth on demand.
+trait Runs {
+    /// Pixels `xs` of the row starting at pixel index `row`; `depth(x)` is pixel x's depth.
+    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>, depth: impl Fn(usize) -> f64);
+}
+
+/// Each pixel with its depth, to `visit(pixel index, depth)`.
+struct EachPixel<F>(F);
+
+impl<F: FnMut(usize, f64)> Runs for EachPixel<F> {
+    #[inline(always)]
+    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>, depth: impl Fn(usize) -> f64) {
+        for x in xs {
+            (self.0)(row + x, depth(x));
+        }
+    }
+}
+
+/// Coverage bits, one a pixel, set a word at a time; depths are never asked for.
+struct Bits<'a> {
+    mask: &'a mut [u64],
+    /// The words set, from the first to one past the last.
+    first: usize,
+    end: usize,
+}
+
+impl Runs for Bits<'_> {
+    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>, _: impl Fn(usize) -> f64) {
+        let (a, b) = (row + xs.start(), row + xs.end());
+        let (wa, wb) = (a / 64, b / 64);
+        let from = u64::MAX << (a % 64);
+        let to = u64::MAX >> (63 - b % 64);
+        if wa == wb {
+            self.mask[wa] |= from & to;
+        } else {
+            self.mask[wa] |= from;
+            self.mask[wa + 1..wb].fill(u64::MAX);
+            self.mask[wb] |= to;
+        }
+        (self.first, self.end) = (self.first.min(wa), self.end.max(wb + 1));
     }
 }
 
 /// A triangle of a perspective view, `tri` in the world and `q` its corners as
 /// [`View::project`] gives them, clipped to the near plane in front of the eye: 1/z is what
 /// varies linearly on screen.
-fn fill_perspective(
-    view: &View,
-    tri: &[DVec3; 3],
-    q: [DVec3; 3],
-    coverage: Coverage,
-    visit: &mut impl FnMut(usize, f64),
-) {
+fn fill_perspective(view: &View, tri: &[DVec3; 3], q: [DVec3; 3], coverage: Coverage, visit: &mut impl Runs) {
     let near = view.depth_tolerance();
     // A triangle clipped by one plane has at most four corners.
     let (mut poly, mut corners) = ([DVec3::ZERO; 4], 0);
@@ -80,13 +118,7 @@ fn fill_perspective(
 
 /// Visits the pixels of the screen triangle `p` (x, y, a value that varies linearly on screen)
 /// by `coverage`, with `depth` turning the interpolated value into a depth.
-fn fill(
-    view: &View,
-    p: [DVec3; 3],
-    coverage: Coverage,
-    depth: impl Fn(f64) -> f64,
-    visit: &mut impl FnMut(usize, f64),
-) {
+fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, depth: impl Fn(f64) -> f64, visit: &mut impl Runs) {
     let q = p.map(|v| v.truncate());
     let lo = q[0].min(q[1]).min(q[2]);
     let hi = q[0].max(q[1]).max(q[2]);
@@ -140,14 +172,7 @@ fn interpolate(p: &[DVec3; 3], w: [f64; 3]) -> f64 {
 
 /// [`Coverage::Whole`]: the pixels whose four corners the triangle covers, at the farthest
 /// depth of the corners.
-fn fill_whole(
-    view: &View,
-    p: [DVec3; 3],
-    area: f64,
-    span: Span,
-    depth: impl Fn(f64) -> f64,
-    visit: &mut impl FnMut(usize, f64),
-) {
+fn fill_whole(view: &View, p: [DVec3; 3], area: f64, span: Span, depth: impl Fn(f64) -> f64, visit: &mut impl Runs) {
     let q = p.map(|v| v.truncate());
     let weights = |c: DVec2| {
         [
@@ -166,7 +191,7 @@ fn fill_whole(
                     .iter()
                     .map(|&w| depth(interpolate(&p, w)))
                     .fold(f64::NEG_INFINITY, f64::max);
-                visit(y * view.pixels + x, farthest);
+                visit.run(y * view.pixels, x..=x, |_| farthest);
             }
         }
     }
@@ -181,7 +206,7 @@ fn fill_centres(
     eroded: [bool; 3],
     span: Span,
     depth: impl Fn(f64) -> f64,
-    visit: &mut impl FnMut(usize, f64),
+    visit: &mut impl Runs,
 ) {
     let q = p.map(|v| v.truncate());
     // How far inside each edge a pixel centre must be, as a weight, for the pixel's square to be:
@@ -206,31 +231,40 @@ fn fill_centres(
     };
     // Along a row each edge's function is monotone, rounding and all: an edge whose function
     // rises towards the triangle's side only starts to hold, the others only stop. The run of
-    // pixels drawn starts where the last rising edge holds, found by bisection, and ends where
-    // an edge stops holding.
+    // pixels drawn starts where the last rising edge holds and ends before the first other
+    // edge stops holding, both found by bisection.
     let rising = edges.map(|(e, _)| e.y * area < 0.0);
     let (x0, x1) = span.x;
     for y in span.y.0..=span.y.1 {
         let centre_y = y as f64 + 0.5;
         let rows = edges.map(|(e, o)| e.x * (centre_y - o.y));
         let function = |k: usize, x: usize| rows[k] - edges[k].0.y * ((x as f64 + 0.5) - edges[k].1.x);
-        let (mut first, mut end) = (x0, x1 + 1);
-        while first < end {
-            let mid = (first + end) / 2;
-            if (0..3).all(|k| !rising[k] || holds(k, function(k, mid))) {
-                end = mid;
-            } else {
-                first = mid + 1;
-            }
-        }
-        for x in first..=x1 {
-            let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
-            if !(0..3).all(|k| holds(k, f[k])) {
-                break;
-            }
-            visit(y * view.pixels + x, depth(interpolate(&p, f.map(|f| f / area))));
+        let first = first_where(x0, x1 + 1, |x| (0..3).all(|k| !rising[k] || holds(k, function(k, x))));
+        let end = first_where(first, x1 + 1, |x| {
+            (0..3).any(|k| !rising[k] && !holds(k, function(k, x)))
+        });
+        if first < end {
+            visit.run(y * view.pixels, first..=end - 1, |x| {
+                let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
+                depth(interpolate(&p, f.map(|f| f / area)))
+            });
         }
     }
+}
+
+/// The first x in [from, to) where `test` holds, or `to`, for a test that once it holds, holds
+/// on.
+fn first_where(from: usize, to: usize, test: impl Fn(usize) -> bool) -> usize {
+    let (mut first, mut end) = (from, to);
+    while first < end {
+        let mid = (first + end) / 2;
+        if test(mid) {
+            end = mid;
+        } else {
+            first = mid + 1;
+        }
+    }
+    first
 }
 
 fn cross(a: DVec2, b: DVec2) -> f64 {
@@ -239,31 +273,24 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
 
 /// Calls `visit(pixel index, depth)` for every pixel centre each triangle of `mesh` covers.
 /// Each vertex is projected once.
-pub fn rasterize_mesh(view: &View, mesh: &Mesh, mut visit: impl FnMut(usize, f64)) {
+pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
+    fill_mesh(view, mesh, &mut EachPixel(visit));
+}
+
+/// [`rasterize_mesh`] into any [`Runs`].
+fn fill_mesh(view: &View, mesh: &Mesh, visit: &mut impl Runs) {
     match view.lens {
         Lens::Orthographic { .. } => {
             let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
             for t in &mesh.triangles {
-                fill(
-                    view,
-                    t.map(|i| projected[i as usize]),
-                    Coverage::Centres,
-                    |d| d,
-                    &mut visit,
-                );
+                fill(view, t.map(|i| projected[i as usize]), Coverage::Centres, |d| d, visit);
             }
         }
         Lens::Perspective { .. } => {
             let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
             for t in &mesh.triangles {
                 let tri = t.map(|i| mesh.positions[i as usize].as_dvec3());
-                fill_perspective(
-                    view,
-                    &tri,
-                    t.map(|i| projected[i as usize]),
-                    Coverage::Centres,
-                    &mut visit,
-                );
+                fill_perspective(view, &tri, t.map(|i| projected[i as usize]), Coverage::Centres, visit);
             }
         }
     }
@@ -296,12 +323,13 @@ pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
 /// Sets the bits of `mask` (one bit per pixel) for the pixels `mesh` covers; returns the words
 /// drawn, from the first to one past the last (empty when none).
 pub fn draw_coverage(view: &View, mesh: &Mesh, mask: &mut [u64]) -> std::ops::Range<usize> {
-    let (mut first, mut end) = (usize::MAX, 0);
-    rasterize_mesh(view, mesh, |i, _| {
-        mask[i / 64] |= 1 << (i % 64);
-        (first, end) = (first.min(i / 64), end.max(i / 64 + 1));
-    });
-    first.min(end)..end
+    let mut bits = Bits {
+        mask,
+        first: usize::MAX,
+        end: 0,
+    };
+    fill_mesh(view, mesh, &mut bits);
+    bits.first.min(bits.end)..bits.end
 }
 
 #[cfg(test)]
@@ -420,6 +448,39 @@ mod tests {
             drawn += whole.len();
         }
         assert!(drawn > 10_000 && crossing > 100, "{drawn} pixels, {crossing} crossing");
+    }
+
+    #[test]
+    fn coverage_drawn_by_runs_sets_the_bits_of_the_pixels_drawn_one_by_one() {
+        let mut rng = fastrand::Rng::with_seed(9);
+        let mut mesh = Mesh::default();
+        for t in 0..300u32 {
+            let scale = [0.05, 0.5, 3.0][t as usize % 3];
+            let centre = glam::Vec3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5);
+            for _ in 0..3 {
+                let v = glam::Vec3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5) * scale;
+                mesh.positions.push(centre + v);
+            }
+            mesh.triangles.push([3 * t, 3 * t + 1, 3 * t + 2]);
+        }
+        let mut set = 0;
+        let views = [
+            View::new(DVec3::new(0.2, 0.9, 0.4).normalize(), DVec3::ZERO, 1.0, 70),
+            View::cube_map(DVec3::new(0.01, 0.02, -0.03), 70, 1e-3).swap_remove(2),
+        ];
+        for view in views {
+            let mut by_runs = coverage_mask(&view, &mesh);
+            let mut one_by_one = vec![0u64; by_runs.len()];
+            rasterize_mesh(&view, &mesh, |i, _| one_by_one[i / 64] |= 1 << (i % 64));
+            assert_eq!(by_runs, one_by_one);
+            set += by_runs.iter().map(|w| w.count_ones()).sum::<u32>();
+            // The words drawn are those from the first set to the last.
+            let drawn = draw_coverage(&view, &mesh, &mut by_runs);
+            let first = one_by_one.iter().position(|&w| w != 0).unwrap();
+            let last = one_by_one.iter().rposition(|&w| w != 0).unwrap();
+            assert_eq!(drawn, first..last + 1);
+        }
+        assert!(set > 2000, "{set} pixels");
     }
 
     #[test]

@@ -253,7 +253,10 @@ impl Footprint {
         }
         let [u0, v0, t0, du, dv] = self.plane;
         let t = corners.map(|(u, v)| t0 + du * (u - u0) + dv * (v - v0));
-        Some((t.into_iter().fold(f64::INFINITY, f64::min), t.into_iter().fold(f64::NEG_INFINITY, f64::max)))
+        Some((
+            t.into_iter().fold(f64::INFINITY, f64::min),
+            t.into_iter().fold(f64::NEG_INFINITY, f64::max),
+        ))
     }
 }
 

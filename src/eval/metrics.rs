@@ -2,7 +2,7 @@
 
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::depth_images;
+use crate::geom::raster::{depth_images, draw_depth};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::winding::WindingField;
@@ -91,27 +91,44 @@ pub fn evaluate(
     // camera is under the object.
     let inside = settings.view_set == ViewSet::Inside;
     let gpu = gpu.filter(|_| settings.draws_on_gpu());
-    let images = |mesh: &Mesh| depth_images(&views, mesh, gpu);
-    let (originals, occluders) = (images(original)?, images(occluder)?);
-    let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = views
-        .par_iter()
-        .zip(originals.par_iter().zip(&occluders))
-        .map(|(view, (m, o))| {
-            let tolerance = view.depth_tolerance() as f32;
-            let (mut both, mut seen, mut false_pixels) = (0u64, 0u64, 0u64);
-            for (dm, d_o) in m.iter().zip(o.iter()) {
-                seen += u64::from(dm.is_finite());
-                if d_o.is_finite() {
-                    if dm.is_finite() {
-                        both += 1;
-                    }
-                    false_pixels += u64::from(!dm.is_finite() || *d_o < dm - tolerance);
+    let judge = |view: &View, m: &[f32], o: &[f32]| {
+        let tolerance = view.depth_tolerance() as f32;
+        let (mut both, mut seen, mut false_pixels) = (0u64, 0u64, 0u64);
+        for (dm, d_o) in m.iter().zip(o.iter()) {
+            seen += u64::from(dm.is_finite());
+            if d_o.is_finite() {
+                if dm.is_finite() {
+                    both += 1;
                 }
+                false_pixels += u64::from(!dm.is_finite() || *d_o < dm - tolerance);
             }
-            let coverage = (seen > 0).then(|| both as f64 / seen as f64);
-            (coverage, false_pixels, inside || view.dir.y >= 0.0, view.dir)
-        })
-        .collect();
+        }
+        let coverage = (seen > 0).then(|| both as f64 / seen as f64);
+        (coverage, false_pixels, inside || view.dir.y >= 0.0, view.dir)
+    };
+    let per_view: Vec<(Option<f64>, u64, bool, DVec3)> = match gpu {
+        Some(_) => {
+            let images = |mesh: &Mesh| depth_images(&views, mesh, gpu);
+            let (originals, occluders) = (images(original)?, images(occluder)?);
+            views
+                .par_iter()
+                .zip(originals.par_iter().zip(&occluders))
+                .map(|(view, (m, o))| judge(view, m, o))
+                .collect()
+        }
+        // A view at a time through two images a thread, not every view's images at once.
+        None => views
+            .par_iter()
+            .map_init(
+                || (Vec::new(), Vec::new()),
+                |(m, o), view| {
+                    draw_depth(view, original, m);
+                    draw_depth(view, occluder, o);
+                    judge(view, m, o)
+                },
+            )
+            .collect(),
+    };
     let seen: Vec<f64> = per_view.iter().filter_map(|v| v.0).collect();
     let n = seen.len().max(1) as f64;
     let samples = sample_surface(occluder, settings.outside_samples);

@@ -298,9 +298,17 @@ fn fill_mesh(view: &View, mesh: &Mesh, visit: &mut impl Runs) {
 
 /// The nearest depth per pixel, `f32::INFINITY` where nothing is drawn.
 pub fn depth_image(view: &View, mesh: &Mesh) -> Vec<f32> {
-    let mut depth = vec![f32::INFINITY; view.pixels * view.pixels];
-    rasterize_mesh(view, mesh, |i, d| depth[i] = depth[i].min(d as f32));
+    let mut depth = Vec::new();
+    draw_depth(view, mesh, &mut depth);
     depth
+}
+
+/// [`depth_image`] into `depth`, which is resized to the view's pixels: for a caller that
+/// draws many views in turn through one image.
+pub fn draw_depth(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) {
+    depth.clear();
+    depth.resize(view.pixels * view.pixels, f32::INFINITY);
+    rasterize_mesh(view, mesh, |i, d| depth[i] = depth[i].min(d as f32));
 }
 
 /// Depth images of `mesh` in `views`: on `gpu` where one is given, else on the CPU.

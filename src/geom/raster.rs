@@ -48,21 +48,29 @@ fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, visit: impl
     }
 }
 
-/// Where a fill's pixels go: runs of pixels along a row, each pixel's depth on demand.
-trait Runs {
-    /// Pixels `xs` of the row starting at pixel index `row`; `depth(x)` is pixel x's depth.
-    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>, depth: impl Fn(usize) -> f64);
+/// Where a fill's pixels go: one by one with their depths, or, for a sink that reads no
+/// depths, as whole runs along a row.
+trait Pixels {
+    /// Whether it takes runs: a run's end is then found by bisection, not pixel by pixel.
+    const RUNS: bool;
+    fn pixel(&mut self, index: usize, depth: f64);
+    /// Pixels `xs` of the row that starts at pixel index `row`.
+    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>);
 }
 
 /// Each pixel with its depth, to `visit(pixel index, depth)`.
 struct EachPixel<F>(F);
 
-impl<F: FnMut(usize, f64)> Runs for EachPixel<F> {
+impl<F: FnMut(usize, f64)> Pixels for EachPixel<F> {
+    const RUNS: bool = false;
+
     #[inline(always)]
-    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>, depth: impl Fn(usize) -> f64) {
-        for x in xs {
-            (self.0)(row + x, depth(x));
-        }
+    fn pixel(&mut self, index: usize, depth: f64) {
+        (self.0)(index, depth);
+    }
+
+    fn run(&mut self, _: usize, _: std::ops::RangeInclusive<usize>) {
+        unreachable!("pixels with depths are visited one by one")
     }
 }
 
@@ -74,8 +82,14 @@ struct Bits<'a> {
     end: usize,
 }
 
-impl Runs for Bits<'_> {
-    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>, _: impl Fn(usize) -> f64) {
+impl Pixels for Bits<'_> {
+    const RUNS: bool = true;
+
+    fn pixel(&mut self, index: usize, _: f64) {
+        self.run(index, 0..=0);
+    }
+
+    fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>) {
         let (a, b) = (row + xs.start(), row + xs.end());
         let (wa, wb) = (a / 64, b / 64);
         let from = u64::MAX << (a % 64);
@@ -94,7 +108,7 @@ impl Runs for Bits<'_> {
 /// A triangle of a perspective view, `tri` in the world and `q` its corners as
 /// [`View::project`] gives them, clipped to the near plane in front of the eye: 1/z is what
 /// varies linearly on screen.
-fn fill_perspective(view: &View, tri: &[DVec3; 3], q: [DVec3; 3], coverage: Coverage, visit: &mut impl Runs) {
+fn fill_perspective(view: &View, tri: &[DVec3; 3], q: [DVec3; 3], coverage: Coverage, visit: &mut impl Pixels) {
     let near = view.depth_tolerance();
     // A triangle clipped by one plane has at most four corners.
     let (mut poly, mut corners) = ([DVec3::ZERO; 4], 0);
@@ -118,7 +132,7 @@ fn fill_perspective(view: &View, tri: &[DVec3; 3], q: [DVec3; 3], coverage: Cove
 
 /// Visits the pixels of the screen triangle `p` (x, y, a value that varies linearly on screen)
 /// by `coverage`, with `depth` turning the interpolated value into a depth.
-fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, depth: impl Fn(f64) -> f64, visit: &mut impl Runs) {
+fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, depth: impl Fn(f64) -> f64, visit: &mut impl Pixels) {
     let q = p.map(|v| v.truncate());
     let lo = q[0].min(q[1]).min(q[2]);
     let hi = q[0].max(q[1]).max(q[2]);
@@ -172,7 +186,7 @@ fn interpolate(p: &[DVec3; 3], w: [f64; 3]) -> f64 {
 
 /// [`Coverage::Whole`]: the pixels whose four corners the triangle covers, at the farthest
 /// depth of the corners.
-fn fill_whole(view: &View, p: [DVec3; 3], area: f64, span: Span, depth: impl Fn(f64) -> f64, visit: &mut impl Runs) {
+fn fill_whole(view: &View, p: [DVec3; 3], area: f64, span: Span, depth: impl Fn(f64) -> f64, visit: &mut impl Pixels) {
     let q = p.map(|v| v.truncate());
     let weights = |c: DVec2| {
         [
@@ -191,7 +205,7 @@ fn fill_whole(view: &View, p: [DVec3; 3], area: f64, span: Span, depth: impl Fn(
                     .iter()
                     .map(|&w| depth(interpolate(&p, w)))
                     .fold(f64::NEG_INFINITY, f64::max);
-                visit.run(y * view.pixels, x..=x, |_| farthest);
+                visit.pixel(y * view.pixels + x, farthest);
             }
         }
     }
@@ -199,14 +213,14 @@ fn fill_whole(view: &View, p: [DVec3; 3], area: f64, span: Span, depth: impl Fn(
 
 /// [`Coverage::Centres`] and [`Coverage::Eroded`]: the pixels whose centres the triangle
 /// covers, and whose squares lie wholly inside the edges flagged in `eroded`.
-fn fill_centres(
+fn fill_centres<V: Pixels>(
     view: &View,
     p: [DVec3; 3],
     area: f64,
     eroded: [bool; 3],
     span: Span,
     depth: impl Fn(f64) -> f64,
-    visit: &mut impl Runs,
+    visit: &mut V,
 ) {
     let q = p.map(|v| v.truncate());
     // How far inside each edge a pixel centre must be, as a weight, for the pixel's square to be:
@@ -231,8 +245,9 @@ fn fill_centres(
     };
     // Along a row each edge's function is monotone, rounding and all: an edge whose function
     // rises towards the triangle's side only starts to hold, the others only stop. The run of
-    // pixels drawn starts where the last rising edge holds and ends before the first other
-    // edge stops holding, both found by bisection.
+    // pixels drawn starts where the last rising edge holds, found by bisection, and ends before
+    // the first other edge stops holding: found by bisection too for a sink of runs, else as
+    // the pixels are drawn (most runs of a detailed mesh are a pixel or two long).
     let rising = edges.map(|(e, _)| e.y * area < 0.0);
     let (x0, x1) = span.x;
     for y in span.y.0..=span.y.1 {
@@ -240,14 +255,21 @@ fn fill_centres(
         let rows = edges.map(|(e, o)| e.x * (centre_y - o.y));
         let function = |k: usize, x: usize| rows[k] - edges[k].0.y * ((x as f64 + 0.5) - edges[k].1.x);
         let first = first_where(x0, x1 + 1, |x| (0..3).all(|k| !rising[k] || holds(k, function(k, x))));
-        let end = first_where(first, x1 + 1, |x| {
-            (0..3).any(|k| !rising[k] && !holds(k, function(k, x)))
-        });
-        if first < end {
-            visit.run(y * view.pixels, first..=end - 1, |x| {
-                let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
-                depth(interpolate(&p, f.map(|f| f / area)))
+        if V::RUNS {
+            let end = first_where(first, x1 + 1, |x| {
+                (0..3).any(|k| !rising[k] && !holds(k, function(k, x)))
             });
+            if first < end {
+                visit.run(y * view.pixels, first..=end - 1);
+            }
+            continue;
+        }
+        for x in first..=x1 {
+            let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
+            if !(0..3).all(|k| holds(k, f[k])) {
+                break;
+            }
+            visit.pixel(y * view.pixels + x, depth(interpolate(&p, f.map(|f| f / area))));
         }
     }
 }
@@ -277,8 +299,8 @@ pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
     fill_mesh(view, mesh, &mut EachPixel(visit));
 }
 
-/// [`rasterize_mesh`] into any [`Runs`].
-fn fill_mesh(view: &View, mesh: &Mesh, visit: &mut impl Runs) {
+/// [`rasterize_mesh`] into any [`Pixels`].
+fn fill_mesh(view: &View, mesh: &Mesh, visit: &mut impl Pixels) {
     match view.lens {
         Lens::Orthographic { .. } => {
             let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();

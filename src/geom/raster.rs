@@ -450,19 +450,24 @@ mod tests {
         assert!(drawn_in_all > 100_000, "{drawn_in_all}");
     }
 
-    #[test]
-    fn a_mesh_drawn_from_inside_gives_what_its_triangles_give_one_by_one() {
-        let mut rng = fastrand::Rng::with_seed(3);
-        // Triangles all around the eye: in front, behind, and across its near plane.
+    /// `count` random triangles about the origin, a third at each of the `scales`.
+    fn random_triangles(seed: u64, count: u32, scales: [f32; 3]) -> Mesh {
+        let mut rng = fastrand::Rng::with_seed(seed);
         let mut mesh = Mesh::default();
-        for t in 0..600u32 {
-            let scale = [0.2, 1.0, 4.0][t as usize % 3];
+        for t in 0..count {
             for _ in 0..3 {
-                let v = glam::Vec3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5) * scale;
-                mesh.positions.push(v);
+                let v = glam::Vec3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5);
+                mesh.positions.push(v * scales[t as usize % 3]);
             }
             mesh.triangles.push([3 * t, 3 * t + 1, 3 * t + 2]);
         }
+        mesh
+    }
+
+    #[test]
+    fn a_mesh_drawn_from_inside_gives_what_its_triangles_give_one_by_one() {
+        // Triangles all around the eye: in front, behind, and across its near plane.
+        let mesh = random_triangles(3, 600, [0.2, 1.0, 4.0]);
         let (mut drawn, mut crossing) = (0, 0);
         for view in View::cube_map(DVec3::new(0.01, 0.02, -0.03), 64, 1e-3) {
             let mut whole = Vec::new();
@@ -482,17 +487,7 @@ mod tests {
 
     #[test]
     fn coverage_drawn_by_runs_sets_the_bits_of_the_pixels_drawn_one_by_one() {
-        let mut rng = fastrand::Rng::with_seed(9);
-        let mut mesh = Mesh::default();
-        for t in 0..300u32 {
-            let scale = [0.05, 0.5, 3.0][t as usize % 3];
-            let centre = glam::Vec3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5);
-            for _ in 0..3 {
-                let v = glam::Vec3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5) * scale;
-                mesh.positions.push(centre + v);
-            }
-            mesh.triangles.push([3 * t, 3 * t + 1, 3 * t + 2]);
-        }
+        let mesh = random_triangles(9, 300, [0.05, 0.5, 3.0]);
         let mut set = 0;
         let views = [
             View::new(DVec3::new(0.2, 0.9, 0.4).normalize(), DVec3::ZERO, 1.0, 70),

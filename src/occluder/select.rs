@@ -116,6 +116,11 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
 /// The nonzero words of a bitmask: (word index, bits).
 type SparseMask = Vec<(u32, u64)>;
 
+/// New pixels per triangle.
+fn ratio(pixels: u64, triangles: usize) -> f64 {
+    pixels as f64 / triangles.max(1) as f64
+}
+
 /// A sheet in the lazy greedy queue: an upper bound on its new pixels per triangle. The larger
 /// ratio, then the lower index, comes first.
 #[derive(Clone, Copy)]
@@ -207,13 +212,6 @@ impl State<'_> {
         for c in &self.chosen {
             taken[c.0] = true;
         }
-        let gain = |covered: &[u64], i: usize| -> u64 {
-            self.masks[i]
-                .iter()
-                .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
-                .sum()
-        };
-        let ratio = |g: u64, cost: usize| g as f64 / cost.max(1) as f64;
         // (ratio, candidate): the larger ratio, then the lower index, is better.
         let rank = |(ratio, candidate): (f64, usize), b: (f64, usize)| {
             Bound { ratio, candidate }.cmp(&Bound {
@@ -221,13 +219,12 @@ impl State<'_> {
                 candidate: b.1,
             })
         };
-        let better = |a: (f64, usize), b: (f64, usize)| rank(a, b).is_gt();
         let first_sheet = self.boxes.len();
         // Untaken sheets by their bound per triangle, best first: a sheet's key is its bound.
         let mut queue: BinaryHeap<Bound> = (first_sheet..self.masks.len())
             .filter(|&i| !taken[i])
             .map(|i| Bound {
-                ratio: ratio(gain(&covered, i), self.costs[i]),
+                ratio: ratio(self.gain(&covered, i), self.costs[i]),
                 candidate: i,
             })
             .collect();
@@ -235,34 +232,10 @@ impl State<'_> {
         let mut with_box: HashMap<usize, Mesh> = HashMap::new();
         loop {
             let used = self.triangles();
-            let mut best_sheet: Option<(usize, u64, f64)> = None;
-            // Sheets weighed or over the budget this round, to go back in the queue after it.
-            let mut aside = Vec::new();
-            while let Some(&top) = queue.peek() {
-                let i = top.candidate;
-                if taken[i] {
-                    queue.pop();
-                    continue;
-                }
-                if used + self.costs[i] > self.max_triangles {
-                    aside.push(queue.pop().expect("peeked"));
-                    continue;
-                }
-                if best_sheet.is_some_and(|(b, _, r)| better((r, b), (top.ratio, i))) {
-                    break;
-                }
-                queue.pop();
-                let g = gain(&covered, i);
-                let r = ratio(g, self.costs[i]);
-                aside.push(Bound { ratio: r, candidate: i });
-                if g as f64 >= self.threshold && best_sheet.is_none_or(|(b, _, br)| better((r, i), (br, b))) {
-                    best_sheet = Some((i, g, r));
-                }
-            }
-            queue.extend(aside);
+            let best_sheet = self.best_sheet(&mut queue, &taken, &covered, used);
             let mut ranked_boxes: Vec<(usize, u64)> = (0..first_sheet)
                 .filter(|&i| !taken[i])
-                .map(|i| (i, gain(&covered, i)))
+                .map(|i| (i, self.gain(&covered, i)))
                 .filter(|&(_, g)| g as f64 >= self.threshold)
                 .collect();
             ranked_boxes.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
@@ -301,6 +274,56 @@ impl State<'_> {
                 with_box.clear();
             }
         }
+    }
+
+    /// Silhouette pixels that candidate `i` covers and `covered` does not.
+    fn gain(&self, covered: &[u64], i: usize) -> u64 {
+        self.masks[i]
+            .iter()
+            .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
+            .sum()
+    }
+
+    /// The untaken sheet within the budget with the most new pixels per triangle, if it adds
+    /// enough, as (candidate, pixels, ratio): sheets are weighed in order of their bound in
+    /// `queue` until the best weighed leads the next bound; their new gains become their bounds.
+    fn best_sheet(
+        &self,
+        queue: &mut BinaryHeap<Bound>,
+        taken: &[bool],
+        covered: &[u64],
+        used: usize,
+    ) -> Option<(usize, u64, f64)> {
+        let mut best: Option<(usize, u64, f64)> = None;
+        // Sheets weighed or over the budget, to go back in the queue after.
+        let mut aside = Vec::new();
+        while let Some(&top) = queue.peek() {
+            let i = top.candidate;
+            if taken[i] {
+                queue.pop();
+                continue;
+            }
+            if used + self.costs[i] > self.max_triangles {
+                aside.push(queue.pop().expect("peeked"));
+                continue;
+            }
+            let leads = |(b, _, ratio): (usize, u64, f64), other: Bound| Bound { ratio, candidate: b } > other;
+            if best.is_some_and(|b| leads(b, top)) {
+                break;
+            }
+            queue.pop();
+            let g = self.gain(covered, i);
+            let weighed = Bound {
+                ratio: ratio(g, self.costs[i]),
+                candidate: i,
+            };
+            aside.push(weighed);
+            if g as f64 >= self.threshold && best.is_none_or(|b| !leads(b, weighed)) {
+                best = Some((i, g, weighed.ratio));
+            }
+        }
+        queue.extend(aside);
+        best
     }
 
     /// Drops pieces that later ones made redundant (no pixel of their own), so that a later

@@ -150,11 +150,8 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
                 for v in rv.clone() {
                     let v0 = g.origin[1] + v as f64 * g.cell;
                     let cell = [[u0, u0 + g.cell], [v0, v0 + g.cell]];
-                    let heights = match footprint.as_ref().and_then(|f| f.heights_over(cell)) {
-                        Some(heights) => Some(heights),
-                        None => strip.heights_within(1, cell[1]),
-                    };
-                    if let Some(heights) = heights {
+                    let heights = footprint.as_ref().and_then(|f| f.heights_over(cell));
+                    if let Some(heights) = heights.or_else(|| strip.heights_within(1, cell[1])) {
                         out.push(((u * nv + v) as u32, heights));
                     }
                 }

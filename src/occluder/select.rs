@@ -121,35 +121,35 @@ fn ratio(pixels: u64, triangles: usize) -> f64 {
     pixels as f64 / triangles.max(1) as f64
 }
 
-/// A sheet in the lazy greedy queue: an upper bound on its new pixels per triangle. The larger
-/// ratio, then the lower index, comes first.
+/// A candidate's new pixels per triangle (in the lazy greedy queue, an upper bound on them).
+/// The larger ratio, then the lower index, ranks higher.
 #[derive(Clone, Copy)]
-struct Bound {
+struct Rank {
     ratio: f64,
     candidate: usize,
 }
 
-impl Ord for Bound {
-    fn cmp(&self, other: &Bound) -> Ordering {
+impl Ord for Rank {
+    fn cmp(&self, other: &Rank) -> Ordering {
         self.ratio
             .total_cmp(&other.ratio)
             .then(other.candidate.cmp(&self.candidate))
     }
 }
 
-impl PartialOrd for Bound {
-    fn partial_cmp(&self, other: &Bound) -> Option<Ordering> {
+impl PartialOrd for Rank {
+    fn partial_cmp(&self, other: &Rank) -> Option<Ordering> {
         Some(self.cmp(other))
     }
 }
 
-impl PartialEq for Bound {
-    fn eq(&self, other: &Bound) -> bool {
+impl PartialEq for Rank {
+    fn eq(&self, other: &Rank) -> bool {
         self.cmp(other) == Ordering::Equal
     }
 }
 
-impl Eq for Bound {}
+impl Eq for Rank {}
 
 /// The greedy selection as it goes: candidates are the boxes, then the sheets.
 struct State<'a> {
@@ -212,18 +212,11 @@ impl State<'_> {
         for c in &self.chosen {
             taken[c.0] = true;
         }
-        // (ratio, candidate): the larger ratio, then the lower index, is better.
-        let rank = |(ratio, candidate): (f64, usize), b: (f64, usize)| {
-            Bound { ratio, candidate }.cmp(&Bound {
-                ratio: b.0,
-                candidate: b.1,
-            })
-        };
         let first_sheet = self.boxes.len();
         // Untaken sheets by their bound per triangle, best first: a sheet's key is its bound.
-        let mut queue: BinaryHeap<Bound> = (first_sheet..self.masks.len())
+        let mut queue: BinaryHeap<Rank> = (first_sheet..self.masks.len())
             .filter(|&i| !taken[i])
-            .map(|i| Bound {
+            .map(|i| Rank {
                 ratio: ratio(self.gain(&covered, i), self.costs[i]),
                 candidate: i,
             })
@@ -255,13 +248,14 @@ impl State<'_> {
             with_box.extend(merged);
             let priced_boxes = lookahead.iter().filter_map(|&(i, g)| {
                 let added = with_box[&i].triangles.len().saturating_sub(self.solid.triangles.len());
-                (used + added <= self.max_triangles).then(|| (i, g, ratio(g, added)))
+                let rank = Rank {
+                    ratio: ratio(g, added),
+                    candidate: i,
+                };
+                (used + added <= self.max_triangles).then_some((rank, g))
             });
-            let best = best_sheet
-                .into_iter()
-                .chain(priced_boxes)
-                .max_by(|a, b| rank((a.2, a.0), (b.2, b.0)));
-            let Some((i, pixels, _)) = best else {
+            let best = best_sheet.into_iter().chain(priced_boxes).max_by_key(|&(rank, _)| rank);
+            let Some((Rank { candidate: i, .. }, pixels)) = best else {
                 break;
             };
             for &(w, bits) in &self.masks[i] {
@@ -285,16 +279,16 @@ impl State<'_> {
     }
 
     /// The untaken sheet within the budget with the most new pixels per triangle, if it adds
-    /// enough, as (candidate, pixels, ratio): sheets are weighed in order of their bound in
+    /// enough, with its rank and new pixels: sheets are weighed in order of their bound in
     /// `queue` until the best weighed leads the next bound; their new gains become their bounds.
     fn best_sheet(
         &self,
-        queue: &mut BinaryHeap<Bound>,
+        queue: &mut BinaryHeap<Rank>,
         taken: &[bool],
         covered: &[u64],
         used: usize,
-    ) -> Option<(usize, u64, f64)> {
-        let mut best: Option<(usize, u64, f64)> = None;
+    ) -> Option<(Rank, u64)> {
+        let mut best: Option<(Rank, u64)> = None;
         // Sheets weighed or over the budget, to go back in the queue after.
         let mut aside = Vec::new();
         while let Some(&top) = queue.peek() {
@@ -307,19 +301,18 @@ impl State<'_> {
                 aside.push(queue.pop().expect("peeked"));
                 continue;
             }
-            let leads = |(b, _, ratio): (usize, u64, f64), other: Bound| Bound { ratio, candidate: b } > other;
-            if best.is_some_and(|b| leads(b, top)) {
+            if best.is_some_and(|(b, _)| b > top) {
                 break;
             }
             queue.pop();
             let g = self.gain(covered, i);
-            let weighed = Bound {
+            let weighed = Rank {
                 ratio: ratio(g, self.costs[i]),
                 candidate: i,
             };
             aside.push(weighed);
-            if g as f64 >= self.threshold && best.is_none_or(|b| !leads(b, weighed)) {
-                best = Some((i, g, weighed.ratio));
+            if g as f64 >= self.threshold && best.is_none_or(|(b, _)| weighed > b) {
+                best = Some((weighed, g));
             }
         }
         queue.extend(aside);

@@ -121,47 +121,10 @@ pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -
 }
 
 /// For every cell, the gaps between blocked height ranges whose cross-section is inside.
-fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -> bool + Sync)) -> Vec<Vec<Gap>> {
+fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -> bool + Sync)) -> Gaps {
     let nv = g.dims[1];
     let cells = g.dims[0] * nv;
-    let blocked: Vec<(u32, (f64, f64))> = (0..mesh.triangles.len())
-        .into_par_iter()
-        .fold(Vec::new, |mut out, t| {
-            let tri = mesh.corners(t).map(|p| g.uv(p.as_dvec3()));
-            let lo = |k: usize| tri.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
-            let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
-            let (ru, rv) = (g.range(0, lo(0), hi(0)), g.range(1, lo(1), hi(1)));
-            if ru.len() == 1 && rv.len() == 1 {
-                // Wholly inside one cell: no clipping.
-                out.push(((ru.start * nv + rv.start) as u32, (lo(2), hi(2))));
-                return out;
-            }
-            // A cell wholly inside the triangle's footprint takes its heights from the plane;
-            // only one wider than a cell each way can hold one.
-            let footprint = (hi(0) - lo(0) > g.cell && hi(1) - lo(1) > g.cell)
-                .then(|| Footprint::new(&tri))
-                .flatten();
-            // Clip to each column's strip once, then the strip to each cell of it.
-            for u in ru {
-                let u0 = g.origin[0] + u as f64 * g.cell;
-                let Some(strip) = Polygon::triangle(&tri).clip(0, [u0, u0 + g.cell]) else {
-                    continue;
-                };
-                for v in rv.clone() {
-                    let v0 = g.origin[1] + v as f64 * g.cell;
-                    let cell = [[u0, u0 + g.cell], [v0, v0 + g.cell]];
-                    let heights = footprint.as_ref().and_then(|f| f.heights_over(cell));
-                    if let Some(heights) = heights.or_else(|| strip.heights_within(1, cell[1])) {
-                        out.push(((u * nv + v) as u32, heights));
-                    }
-                }
-            }
-            out
-        })
-        .reduce(Vec::new, |mut a, mut b| {
-            a.append(&mut b);
-            a
-        });
+    let blocked = blocked_ranges(mesh, g);
     // Counting sort by cell.
     let mut starts = vec![0usize; cells + 1];
     for &(c, _) in &blocked {
@@ -176,84 +139,105 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
         ranges[next[c as usize]] = heights;
         next[c as usize] += 1;
     }
-    let mut by_cell: Vec<&mut [(f64, f64)]> = Vec::with_capacity(cells);
+    // A row of cells at a time: few allocations, and enough rows to share out.
+    let mut rows: Vec<&mut [(f64, f64)]> = Vec::with_capacity(g.dims[0]);
     let mut rest = ranges.as_mut_slice();
-    for c in 0..cells {
-        let (head, tail) = rest.split_at_mut(starts[c + 1] - starts[c]);
-        by_cell.push(head);
+    for u in 0..g.dims[0] {
+        let (head, tail) = rest.split_at_mut(starts[(u + 1) * nv] - starts[u * nv]);
+        rows.push(head);
         rest = tail;
     }
-    by_cell
+    let by_row: Vec<(Vec<Gap>, Vec<usize>)> = rows
         .into_par_iter()
         .enumerate()
-        .map(|(c, ranges)| {
-            ranges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-            let (u, v) = (c / nv, c % nv);
-            let center = [
-                g.origin[0] + (u as f64 + 0.5) * g.cell,
-                g.origin[1] + (v as f64 + 0.5) * g.cell,
-            ];
-            let mut gaps = Vec::new();
-            let mut top = f64::NEG_INFINITY;
-            for &(t0, t1) in ranges.iter() {
-                if top > f64::NEG_INFINITY && t0 - top > 2.0 * margin {
-                    let mid = 0.5 * (top + t0);
-                    if inside(g.point(center[0], center[1], mid)) {
-                        gaps.push(Gap { lo: top, hi: t0 });
+        .map(|(u, row)| {
+            let (mut list, mut ends) = (Vec::new(), Vec::with_capacity(nv));
+            for v in 0..nv {
+                let c = u * nv + v;
+                let ranges = &mut row[starts[c] - starts[u * nv]..starts[c + 1] - starts[u * nv]];
+                ranges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+                let center = [
+                    g.origin[0] + (u as f64 + 0.5) * g.cell,
+                    g.origin[1] + (v as f64 + 0.5) * g.cell,
+                ];
+                let mut top = f64::NEG_INFINITY;
+                for &(t0, t1) in ranges.iter() {
+                    if top > f64::NEG_INFINITY && t0 - top > 2.0 * margin {
+                        let mid = 0.5 * (top + t0);
+                        if inside(g.point(center[0], center[1], mid)) {
+                            list.push(Gap { lo: top, hi: t0 });
+                        }
+                    }
+                    top = top.max(t1);
+                }
+                ends.push(list.len());
+            }
+            (list, ends)
+        })
+        .collect();
+    let mut gaps = Gaps {
+        starts: Vec::with_capacity(cells + 1),
+        list: Vec::new(),
+    };
+    gaps.starts.push(0);
+    for (list, ends) in by_row {
+        let before = gaps.list.len();
+        gaps.starts.extend(ends.iter().map(|end| before + end));
+        gaps.list.extend(list);
+    }
+    gaps
+}
+
+/// The heights each triangle blocks in each cell whose closed footprint it meets, by cell.
+fn blocked_ranges(mesh: &Mesh, g: &AxisGrid) -> Vec<(u32, (f64, f64))> {
+    let nv = g.dims[1];
+    (0..mesh.triangles.len())
+        .into_par_iter()
+        .fold(
+            || (Vec::new(), Vec::new()),
+            |(mut out, mut bands), t| {
+                let tri = mesh.corners(t).map(|p| g.uv(p.as_dvec3()));
+                let lo = |k: usize| tri.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+                let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
+                let (ru, rv) = (g.range(0, lo(0), hi(0)), g.range(1, lo(1), hi(1)));
+                if ru.len() == 1 && rv.len() == 1 {
+                    // Wholly inside one cell: no clipping.
+                    out.push(((ru.start * nv + rv.start) as u32, (lo(2), hi(2))));
+                    return (out, bands);
+                }
+                // Clip to each column's strip, then take each cell's heights from where the
+                // strip's edges cross the lines between cells.
+                for u in ru {
+                    let u0 = g.origin[0] + u as f64 * g.cell;
+                    let Some(strip) = Polygon::triangle(&tri).clip(0, [u0, u0 + g.cell]) else {
+                        continue;
+                    };
+                    strip.band_heights(g.origin[1], g.cell, rv.clone(), &mut bands);
+                    for (v, &(t0, t1)) in rv.clone().zip(&bands) {
+                        if t0 <= t1 {
+                            out.push(((u * nv + v) as u32, (t0, t1)));
+                        }
                     }
                 }
-                top = top.max(t1);
-            }
-            gaps
+                (out, bands)
+            },
+        )
+        .map(|(out, _)| out)
+        .reduce(Vec::new, |mut a, mut b| {
+            a.append(&mut b);
+            a
         })
-        .collect()
 }
 
-/// A triangle in (u, v, t) seen along t: its edges' functions and its plane.
-struct Footprint {
-    /// Per edge, (a, b, c) with a·u + b·v + c ≥ 0 on the triangle's side.
-    edges: [[f64; 3]; 3],
-    /// t = plane[2] + plane[3]·(u - plane[0]) + plane[4]·(v - plane[1]): about a corner, so
-    /// that far from the origin no large terms cancel.
-    plane: [f64; 5],
+/// Each cell's inside gaps, in order of height: cell c's are `list[starts[c]..starts[c + 1]]`.
+struct Gaps {
+    starts: Vec<usize>,
+    list: Vec<Gap>,
 }
 
-impl Footprint {
-    /// None when the triangle is edge-on along t.
-    fn new(tri: &[[f64; 3]; 3]) -> Option<Footprint> {
-        let [p, q, r] = tri.map(DVec3::from_array);
-        let normal = (q - p).cross(r - p);
-        if normal.z == 0.0 || !normal.is_finite() {
-            return None;
-        }
-        let side = normal.z.signum();
-        let edges = [(p, q), (q, r), (r, p)].map(|(a, b)| {
-            let (du, dv) = (b.x - a.x, b.y - a.y);
-            [-dv * side, du * side, (dv * a.x - du * a.y) * side]
-        });
-        let plane = [p.x, p.y, p.z, -normal.x / normal.z, -normal.y / normal.z];
-        Some(Footprint { edges, plane })
-    }
-
-    /// The lowest and highest t over `cell` ([u range, v range]) when the footprint holds the
-    /// whole cell: the plane's at its corners.
-    fn heights_over(&self, cell: [[f64; 2]; 2]) -> Option<(f64, f64)> {
-        let corners = [
-            (cell[0][0], cell[1][0]),
-            (cell[0][1], cell[1][0]),
-            (cell[0][0], cell[1][1]),
-            (cell[0][1], cell[1][1]),
-        ];
-        let holds = |(u, v): (f64, f64)| self.edges.iter().all(|e| e[0] * u + e[1] * v + e[2] >= 0.0);
-        if !corners.iter().all(|&c| holds(c)) {
-            return None;
-        }
-        let [u0, v0, t0, du, dv] = self.plane;
-        let t = corners.map(|(u, v)| t0 + du * (u - u0) + dv * (v - v0));
-        Some((
-            t.into_iter().fold(f64::INFINITY, f64::min),
-            t.into_iter().fold(f64::NEG_INFINITY, f64::max),
-        ))
+impl Gaps {
+    fn of(&self, c: usize) -> &[Gap] {
+        &self.list[self.starts[c]..self.starts[c + 1]]
     }
 }
 
@@ -314,28 +298,61 @@ impl Polygon {
         }
     }
 
-    /// The lowest and highest t of the part with coordinate `k` in the closed range `bounds`,
-    /// if any: those of [`Polygon::clip`]'s corners, without building the last clip.
-    #[inline(always)]
-    fn heights_within(&self, k: usize, bounds: [f64; 2]) -> Option<(f64, f64)> {
-        let (mut lo, mut hi, mut any) = (f64::INFINITY, f64::NEG_INFINITY, false);
-        self.clip_side(k, bounds[0], true)?
-            .clipped_corners(k, bounds[1], false, |p| {
-                (lo, hi, any) = (lo.min(p[2]), hi.max(p[2]), true)
-            });
-        any.then_some((lo, hi))
+    /// The lowest and highest t of the part in each band along v, closed, band k over
+    /// [`origin` + k·`cell`, `origin` + (k+1)·`cell`] for k in `bands`, into `heights` (lowest
+    /// above highest where the part misses the band). t is linear over the polygon, so its
+    /// extremes over a band lie at corners in the band or where edges cross its two lines.
+    fn band_heights(&self, origin: f64, cell: f64, bands: std::ops::Range<usize>, heights: &mut Vec<(f64, f64)>) {
+        let count = bands.len();
+        heights.clear();
+        heights.resize(count, (f64::INFINITY, f64::NEG_INFINITY));
+        // The cells' own bounds, computed as the quads' corners are.
+        let line = |k: usize| origin + (bands.start + k) as f64 * cell;
+        let first = line(0);
+        let mut add = |band: usize, t: f64| {
+            if let Some(h) = heights.get_mut(band) {
+                *h = (h.0.min(t), h.1.max(t));
+            }
+        };
+        let corners = &self.corners[..self.len];
+        for (i, &a) in corners.iter().enumerate() {
+            let b = corners[(i + 1) % self.len];
+            let k = ((a[1] - first) / cell).floor().max(0.0) as usize;
+            for band in k.saturating_sub(1)..k + 2 {
+                if line(band) <= a[1] && a[1] <= line(band + 1) {
+                    add(band, a[2]);
+                }
+            }
+            let (lo, hi) = if a[1] < b[1] { (a, b) } else { (b, a) };
+            if lo[1] == hi[1] {
+                continue;
+            }
+            let slope = (hi[2] - lo[2]) / (hi[1] - lo[1]);
+            let first_line = ((lo[1] - first) / cell).floor().max(0.0) as usize;
+            for k in first_line..=count {
+                let v = line(k);
+                if v > hi[1] {
+                    break;
+                }
+                if v >= lo[1] {
+                    let t = lo[2] + (v - lo[1]) * slope;
+                    add(k.wrapping_sub(1), t);
+                    add(k, t);
+                }
+            }
+        }
     }
 }
 
 /// Planes worth trying: evenly spaced along the axis, plus the middles of the thin gaps
 /// (walls thinner than a cell) that many cells share.
-fn candidate_planes(gaps: &[Vec<Gap>], lo: f64, hi: f64, cell: f64) -> Vec<f64> {
+fn candidate_planes(gaps: &Gaps, lo: f64, hi: f64, cell: f64) -> Vec<f64> {
     let step = PLANE_SPACING * cell;
     let steps = ((hi - lo) / step).ceil().max(1.0) as usize;
     let mut planes: Vec<f64> = (0..steps).map(|k| lo + (k as f64 + 0.5) * step).collect();
     let quantum = cell / 64.0;
     let mut thin: HashMap<i64, (usize, f64)> = HashMap::new();
-    for gap in gaps.iter().flatten().filter(|g| g.hi - g.lo < 2.0 * cell) {
+    for gap in gaps.list.iter().filter(|g| g.hi - g.lo < 2.0 * cell) {
         let mid = 0.5 * (gap.lo + gap.hi);
         let entry = thin.entry((mid / quantum).round() as i64).or_insert((0, mid));
         entry.0 += 1;
@@ -351,7 +368,7 @@ fn candidate_planes(gaps: &[Vec<Gap>], lo: f64, hi: f64, cell: f64) -> Vec<f64> 
 enum Bound {
     /// The plane's open cells: no rectangle has more.
     Counted,
-    /// The cells of a best that a taken rectangle has since closed a cell of.
+    /// At most the cells of a best that a taken rectangle has since closed a cell of.
     Stale,
     /// The cells of `best`, searched over the cells open now.
     Exact,
@@ -366,6 +383,9 @@ struct PlaneCells {
     /// An upper bound on the cells of the largest open rectangle; exact when `state` says so.
     bound: usize,
     state: Bound,
+    open_cells: usize,
+    /// Whether the rectangle being taken has closed a cell of it.
+    touched: bool,
     /// The search, over the bounding box of the cells open when it first ran (from the corner
     /// given), and the first of its rows where a cell has closed since it last ran.
     sweep: Option<([usize; 2], Sweep)>,
@@ -375,22 +395,30 @@ struct PlaneCells {
 /// The candidate planes of one axis grid, and which of them each gap holds.
 struct Planes {
     list: Vec<PlaneCells>,
-    /// Plane indices in order of height, and the heights in that order.
+    /// Plane indices in order of height, each plane's position in it, and the heights in that
+    /// order.
     order: Vec<usize>,
+    rank: Vec<usize>,
     heights: Vec<f64>,
     margin: f64,
     /// Cells along the grid's second axis, and words of a row of `open`.
     nv: usize,
     row_words: usize,
+    /// The planes the rectangle being taken has closed a cell of.
+    touched: Vec<usize>,
 }
 
 impl Planes {
     /// Each plane open in the cells with a gap that holds it: one pass over the gaps, since a
     /// gap holds a run of planes in order of height, and a cell's gaps do not overlap.
-    fn new(gaps: &[Vec<Gap>], planes: &[f64], margin: f64, dims: [usize; 2]) -> Planes {
+    fn new(gaps: &Gaps, planes: &[f64], margin: f64, dims: [usize; 2]) -> Planes {
         let mut order: Vec<usize> = (0..planes.len()).collect();
         order.sort_by(|&a, &b| planes[a].total_cmp(&planes[b]));
         let heights = order.iter().map(|&i| planes[i]).collect();
+        let mut rank = vec![0; planes.len()];
+        for (k, &i) in order.iter().enumerate() {
+            rank[i] = k;
+        }
         let row_words = dims[1].div_ceil(64);
         let list = planes
             .iter()
@@ -400,6 +428,8 @@ impl Planes {
                 best: None,
                 bound: 0,
                 state: Bound::Counted,
+                open_cells: 0,
+                touched: false,
                 sweep: None,
                 dirty_from: 0,
             })
@@ -407,20 +437,25 @@ impl Planes {
         let mut all = Planes {
             list,
             order,
+            rank,
             heights,
             margin,
             nv: dims[1],
             row_words,
+            touched: Vec::new(),
         };
-        for (c, cell_gaps) in gaps.iter().enumerate() {
-            for gap in cell_gaps {
+        for c in 0..gaps.starts.len() - 1 {
+            for gap in gaps.of(c) {
                 let (word, bit) = all.bit(c);
                 for k in all.holding(gap) {
                     let plane = &mut all.list[all.order[k]];
                     plane.open[word] |= bit;
-                    plane.bound += 1;
+                    plane.open_cells += 1;
                 }
             }
+        }
+        for plane in &mut all.list {
+            plane.bound = plane.open_cells;
         }
         all
     }
@@ -445,13 +480,38 @@ impl Planes {
         let (u, v) = (c / self.nv, c % self.nv);
         for k in self.holding(gap) {
             let plane = &mut self.list[self.order[k]];
+            if plane.open[word] & bit == 0 {
+                continue;
+            }
             plane.open[word] &= !bit;
+            plane.open_cells -= 1;
+            if !plane.touched {
+                plane.touched = true;
+                self.touched.push(self.order[k]);
+            }
             if let Some(([u0, _], _)) = plane.sweep {
                 plane.dirty_from = plane.dirty_from.min(u - u0);
             }
             let holds = |r: &CellRect| (r.u[0]..r.u[1]).contains(&u) && (r.v[0]..r.v[1]).contains(&v);
             if plane.best.as_ref().is_some_and(holds) {
                 plane.state = Bound::Stale;
+            }
+            if plane.state != Bound::Exact {
+                plane.bound = plane.bound.min(plane.open_cells);
+            }
+        }
+    }
+
+    /// Once `rect` is taken, bounds each plane it closed cells of that has no exact bound by
+    /// the cells left open around it ([`open_around`]).
+    fn bound_around(&mut self, rect: &CellRect) {
+        for i in self.touched.drain(..) {
+            let plane = &mut self.list[i];
+            plane.touched = false;
+            if plane.state != Bound::Exact
+                && let Some(around) = open_around(&plane.open, self.row_words, rect)
+            {
+                plane.bound = plane.bound.min(around);
             }
         }
     }
@@ -460,6 +520,13 @@ impl Planes {
     /// again only from the first row where a cell closed, until the open cells fit in half
     /// that box, when the search starts anew over their box.
     fn search(&mut self, i: usize) {
+        if let Some(twin) = self.twin(i) {
+            let best = self.list[twin].best;
+            let plane = &mut self.list[i];
+            (plane.best, plane.bound, plane.state, plane.sweep) =
+                (best, best.map_or(0, |r| r.cells()), Bound::Exact, None);
+            return;
+        }
         let row_words = self.row_words;
         let plane = &mut self.list[i];
         match open_bounds(&plane.open, row_words) {
@@ -494,6 +561,49 @@ impl Planes {
     }
 }
 
+impl Planes {
+    /// A plane next to plane `i` in height, or next to one of those, with the same open cells
+    /// and an exact best: the best a search of `i` would find. Planes a few cells apart in a
+    /// thick part of the solid often agree.
+    fn twin(&self, i: usize) -> Option<usize> {
+        let (open, k) = (&self.list[i].open, self.rank[i]);
+        let twin_among = |side: &mut dyn Iterator<Item = &usize>| {
+            side.map(|&j| &self.list[j])
+                .take_while(|plane| plane.open == *open)
+                .position(|plane| plane.state == Bound::Exact)
+        };
+        let below = twin_among(&mut self.order[..k].iter().rev()).map(|n| self.order[k - 1 - n]);
+        below.or_else(|| twin_among(&mut self.order[k + 1..].iter()).map(|n| self.order[k + 1 + n]))
+    }
+}
+
+/// With no cell of `rect` open, an open rectangle lies wholly above, below, left or right of
+/// it: the most open cells of those four parts bound it. None when a cell of `rect` is open.
+fn open_around(open: &[u64], row_words: usize, rect: &CellRect) -> Option<usize> {
+    // The bits of word w for columns before `v`.
+    let before = |w: usize, v: usize| match v.saturating_sub(64 * w) {
+        0 => 0,
+        k if k >= 64 => u64::MAX,
+        k => (1u64 << k) - 1,
+    };
+    let [mut above, mut below, mut left, mut right] = [0usize; 4];
+    for (u, row) in open.chunks(row_words).enumerate() {
+        for (w, &word) in row.iter().enumerate().filter(|(_, word)| **word != 0) {
+            let (l, r) = (word & before(w, rect.v[0]), word & !before(w, rect.v[1]));
+            if u < rect.u[0] {
+                above += word.count_ones() as usize;
+            } else if u >= rect.u[1] {
+                below += word.count_ones() as usize;
+            } else if word & !l & !r != 0 {
+                return None;
+            }
+            left += l.count_ones() as usize;
+            right += r.count_ones() as usize;
+        }
+    }
+    Some(above.max(below).max(left).max(right))
+}
+
 /// The first and last rows and columns with an open cell, if any.
 fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2])> {
     let rows: Vec<usize> = (0..open.len() / row_words)
@@ -516,16 +626,18 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
 
 /// Greedy: the largest open rectangle over all candidate planes, then the next on what is left.
 /// A plane is searched only once an upper bound on its rectangle leads all others: its open
-/// cells at first; after a taken rectangle closes a cell of its best, that best. These are lazy
-/// greedy picks, the same as searching every plane at first and again whenever it loses cells.
-fn best_rectangles(g: &AxisGrid, gaps: &[Vec<Gap>], planes: &[f64], margin: f64) -> Vec<Panel> {
+/// cells at first; after a taken rectangle closes a cell of its best, the fewest of that best,
+/// its open cells and those of the largest part around the taken rectangle. A plane with the
+/// same open cells as a neighbour searched since takes its best. These are lazy greedy picks,
+/// the same as searching every plane at first and again whenever it loses cells.
+fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Vec<Panel> {
     let nv = g.dims[1];
     let mut planes = Planes::new(gaps, planes, margin, g.dims);
     let mut quads = Vec::new();
     while quads.len() < MAX_PER_AXIS {
         let candidates = &planes.list;
         let Some(top) = (0..candidates.len())
-            .filter(|&i| candidates[i].bound > 0)
+            .filter(|&i| candidates[i].bound >= MIN_CELLS)
             .max_by(|&a, &b| {
                 let (a, b) = (&candidates[a], &candidates[b]);
                 a.bound.cmp(&b.bound).then(b.t.total_cmp(&a.t))
@@ -545,7 +657,8 @@ fn best_rectangles(g: &AxisGrid, gaps: &[Vec<Gap>], planes: &[f64], margin: f64)
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
         for (u, v) in rect.iter() {
             let c = u * nv + v;
-            let gap = gaps[c]
+            let gap = gaps
+                .of(c)
                 .iter()
                 .find(|gap| gap.holds(plane, margin))
                 .expect("the rectangle's cells hold the plane");
@@ -553,6 +666,7 @@ fn best_rectangles(g: &AxisGrid, gaps: &[Vec<Gap>], planes: &[f64], margin: f64)
             hi = hi.min(gap.hi);
             planes.close(c, gap);
         }
+        planes.bound_around(&rect);
         let t = 0.5 * (lo + hi);
         let u = rect.u.map(|k| g.origin[0] + k as f64 * g.cell);
         let v = rect.v.map(|k| g.origin[1] + k as f64 * g.cell);
@@ -563,4 +677,78 @@ fn best_rectangles(g: &AxisGrid, gaps: &[Vec<Gap>], planes: &[f64], margin: f64)
         });
     }
     quads
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::occluder::rectangle::largest;
+
+    #[test]
+    fn band_heights_are_those_of_the_strip_clipped_to_each_band() {
+        let mut rng = fastrand::Rng::with_seed(3);
+        let mut heights = Vec::new();
+        for _ in 0..2000 {
+            // Corners on the lines now and then, as a mesh on the grid has them.
+            let coordinate = |rng: &mut fastrand::Rng| match rng.usize(0..4) {
+                0 => rng.usize(0..6) as f64 * 0.5,
+                _ => rng.f64() * 3.0,
+            };
+            let tri: [[f64; 3]; 3] = std::array::from_fn(|_| [0.0, coordinate(&mut rng), rng.f64() * 10.0 - 5.0]);
+            let (origin, cell) = (0.0, 0.5);
+            let lo = tri.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
+            let hi = tri.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max);
+            let first = ((lo - origin) / cell - 1.0).ceil().max(0.0) as usize;
+            let bands = first..((hi - origin) / cell).floor() as usize + 1;
+            let polygon = Polygon::triangle(&tri);
+            polygon.band_heights(origin, cell, bands.clone(), &mut heights);
+            for (k, &(t0, t1)) in bands.zip(&heights) {
+                let band = [origin + k as f64 * cell, origin + (k + 1) as f64 * cell];
+                let clipped = polygon.clip(1, band).map(|part| {
+                    let ts = part.corners[..part.len].iter().map(|p| p[2]);
+                    (
+                        ts.clone().fold(f64::INFINITY, f64::min),
+                        ts.fold(f64::NEG_INFINITY, f64::max),
+                    )
+                });
+                match clipped {
+                    Some((c0, c1)) => assert!((c0 - t0).abs() < 1e-9 && (c1 - t1).abs() < 1e-9, "{tri:?} band {k}"),
+                    None => assert!(t0 > t1, "{tri:?} band {k}: ({t0}, {t1}) where the clip is empty"),
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_cells_open_around_a_closed_rectangle_bound_the_largest_left() {
+        let mut rng = fastrand::Rng::with_seed(5);
+        for _ in 0..300 {
+            let (nu, nv) = (rng.usize(1..12), rng.usize(1..80));
+            let row_words = nv.div_ceil(64);
+            let mut mask: Vec<bool> = (0..nu * nv).map(|_| rng.f64() < 0.8).collect();
+            let (u0, v0) = (rng.usize(0..nu), rng.usize(0..nv));
+            let rect = CellRect {
+                u: [u0, rng.usize(u0 + 1..=nu)],
+                v: [v0, rng.usize(v0 + 1..=nv)],
+            };
+            let leave_one = rng.bool();
+            for (u, v) in rect.iter() {
+                mask[u * nv + v] = false;
+            }
+            if leave_one {
+                mask[u0 * nv + v0] = true;
+            }
+            let mut open = vec![0u64; nu * row_words];
+            for (c, _) in mask.iter().enumerate().filter(|(_, open)| **open) {
+                open[c / nv * row_words + c % nv / 64] |= 1 << (c % nv % 64);
+            }
+            let around = open_around(&open, row_words, &rect);
+            if leave_one {
+                assert_eq!(around, None);
+            } else {
+                let left = largest(&mask, nu, nv, 1).map_or(0, |r| r.cells());
+                assert!(around.expect("no cell of the rectangle is open") >= left);
+            }
+        }
+    }
 }

@@ -51,7 +51,7 @@ fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, visit: impl
 /// Where a fill's pixels go: one by one with their depths, or, for a sink that reads no
 /// depths, as whole runs along a row.
 trait Pixels {
-    /// Whether it takes runs: a run's end is then found by bisection, not pixel by pixel.
+    /// Whether it takes runs, without depths: every run's end is then found by bisection.
     const RUNS: bool;
     fn pixel(&mut self, index: usize, depth: f64);
     /// Pixels `xs` of the row that starts at pixel index `row`.
@@ -246,8 +246,8 @@ fn fill_centres<V: Pixels>(
     // Along a row each edge's function is monotone, rounding and all: an edge whose function
     // rises towards the triangle's side only starts to hold, the others only stop. The run of
     // pixels drawn starts where the last rising edge holds, found by bisection, and ends before
-    // the first other edge stops holding: found by bisection too for a sink of runs, else as
-    // the pixels are drawn (most runs of a detailed mesh are a pixel or two long).
+    // the first other edge stops holding: found by bisection too for a sink of runs or a long
+    // row, else as the pixels are drawn (most runs of a detailed mesh are a pixel or two long).
     let rising = edges.map(|(e, _)| e.y * area < 0.0);
     let (x0, x1) = span.x;
     for y in span.y.0..=span.y.1 {
@@ -255,24 +255,35 @@ fn fill_centres<V: Pixels>(
         let rows = edges.map(|(e, o)| e.x * (centre_y - o.y));
         let function = |k: usize, x: usize| rows[k] - edges[k].0.y * ((x as f64 + 0.5) - edges[k].1.x);
         let first = first_where(x0, x1 + 1, |x| (0..3).all(|k| !rising[k] || holds(k, function(k, x))));
+        let ends_after = |x| (0..3).any(|k| !rising[k] && !holds(k, function(k, x)));
         if V::RUNS {
-            let end = first_where(first, x1 + 1, |x| {
-                (0..3).any(|k| !rising[k] && !holds(k, function(k, x)))
-            });
+            let end = first_where(first, x1 + 1, ends_after);
             if first < end {
                 visit.run(y * view.pixels, first..=end - 1);
             }
             continue;
         }
+        let depth_at = |f: [f64; 3]| depth(interpolate(&p, f.map(|f| f / area)));
+        let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
+        if x1 + 1 - first >= LONG_ROW {
+            // A long row's end is bisected too, and its pixels drawn without tests.
+            for x in first..first_where(first, x1 + 1, ends_after) {
+                visit.pixel(y * view.pixels + x, depth_at(at(x)));
+            }
+            continue;
+        }
         for x in first..=x1 {
-            let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
+            let f = at(x);
             if !(0..3).all(|k| holds(k, f[k])) {
                 break;
             }
-            visit.pixel(y * view.pixels + x, depth(interpolate(&p, f.map(|f| f / area))));
+            visit.pixel(y * view.pixels + x, depth_at(f));
         }
     }
 }
+
+/// Pixels left in a row from which a depth image's run ends by bisection.
+const LONG_ROW: usize = 8;
 
 /// The first x in [from, to) where `test` holds, or `to`, for a test that once it holds, holds
 /// on.

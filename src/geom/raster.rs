@@ -249,6 +249,9 @@ fn fill_centres<V: Pixels>(
     // the first other edge stops holding: found by bisection too for a sink of runs or a long
     // row, else as the pixels are drawn (most runs of a detailed mesh are a pixel or two long).
     let rising = edges.map(|(e, _)| e.y * area < 0.0);
+    // Depths weigh the corners by edge function times this, not over the area: three
+    // multiplications a pixel instead of three divisions.
+    let per_area = 1.0 / area;
     let (x0, x1) = span.x;
     for y in span.y.0..=span.y.1 {
         let centre_y = y as f64 + 0.5;
@@ -263,7 +266,7 @@ fn fill_centres<V: Pixels>(
             }
             continue;
         }
-        let depth_at = |f: [f64; 3]| depth(interpolate(&p, f.map(|f| f / area)));
+        let depth_at = |f: [f64; 3]| depth(interpolate(&p, f.map(|f| f * per_area)));
         let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
         if x1 + 1 - first >= LONG_ROW {
             // A long row's end is bisected too, and its pixels drawn without tests.
@@ -413,12 +416,14 @@ mod tests {
         };
         for i in 0..view.pixels * view.pixels {
             let c = DVec2::new((i % view.pixels) as f64 + 0.5, (i / view.pixels) as f64 + 0.5);
-            let w = [
-                cross(q[2] - q[1], c - q[1]) / area,
-                cross(q[0] - q[2], c - q[2]) / area,
-                cross(q[1] - q[0], c - q[0]) / area,
+            let f = [
+                cross(q[2] - q[1], c - q[1]),
+                cross(q[0] - q[2], c - q[2]),
+                cross(q[1] - q[0], c - q[0]),
             ];
-            if (0..3).all(|k| w[k] >= inset(k)) {
+            if (0..3).all(|k| f[k] / area >= inset(k)) {
+                // Depths weigh by the edge functions times 1 / area, as fill_centres does.
+                let w = f.map(|f| f * (1.0 / area));
                 out.push((i, w[0] * p[0].z + w[1] * p[1].z + w[2] * p[2].z));
             }
         }

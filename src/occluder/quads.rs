@@ -127,15 +127,15 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
     let blocked = blocked_ranges(mesh, g);
     // Counting sort by cell.
     let mut starts = vec![0usize; cells + 1];
-    for &(c, _) in &blocked {
+    for &(c, _) in blocked.iter().flatten() {
         starts[c as usize + 1] += 1;
     }
     for c in 0..cells {
         starts[c + 1] += starts[c];
     }
-    let mut ranges = vec![(0.0f64, 0.0f64); blocked.len()];
+    let mut ranges = vec![(0.0f64, 0.0f64); starts[cells]];
     let mut next = starts.clone();
-    for &(c, heights) in &blocked {
+    for &(c, heights) in blocked.iter().flatten() {
         ranges[next[c as usize]] = heights;
         next[c as usize] += 1;
     }
@@ -188,8 +188,9 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
     gaps
 }
 
-/// The heights each triangle blocks in each cell whose closed footprint it meets, by cell.
-fn blocked_ranges(mesh: &Mesh, g: &AxisGrid) -> Vec<(u32, (f64, f64))> {
+/// The heights each triangle blocks in each cell whose closed footprint it meets, by cell: in
+/// one list per share of the triangles, which the counting sort reads without joining them.
+fn blocked_ranges(mesh: &Mesh, g: &AxisGrid) -> Vec<Vec<(u32, (f64, f64))>> {
     let nv = g.dims[1];
     (0..mesh.triangles.len())
         .into_par_iter()
@@ -223,10 +224,7 @@ fn blocked_ranges(mesh: &Mesh, g: &AxisGrid) -> Vec<(u32, (f64, f64))> {
             },
         )
         .map(|(out, _)| out)
-        .reduce(Vec::new, |mut a, mut b| {
-            a.append(&mut b);
-            a
-        })
+        .collect()
 }
 
 /// Each cell's inside gaps, in order of height: cell c's are `list[starts[c]..starts[c + 1]]`.
@@ -406,11 +404,14 @@ struct Planes {
     row_words: usize,
     /// The planes the rectangle being taken has closed a cell of.
     touched: Vec<usize>,
+    /// The planes, as positions in `order`, that each gap holds ([`Planes::holding`]), in the
+    /// order of [`Gaps::list`].
+    held: Vec<std::ops::Range<usize>>,
 }
 
 impl Planes {
-    /// Each plane open in the cells with a gap that holds it: one pass over the gaps, since a
-    /// gap holds a run of planes in order of height, and a cell's gaps do not overlap.
+    /// Each plane open in the cells with a gap that holds it: a gap holds a run of planes in
+    /// order of height, and a cell's gaps do not overlap.
     fn new(gaps: &Gaps, planes: &[f64], margin: f64, dims: [usize; 2]) -> Planes {
         let mut order: Vec<usize> = (0..planes.len()).collect();
         order.sort_by(|&a, &b| planes[a].total_cmp(&planes[b]));
@@ -443,18 +444,35 @@ impl Planes {
             nv: dims[1],
             row_words,
             touched: Vec::new(),
+            held: Vec::new(),
         };
+        // Where each gap's run of planes starts and ends, by position in height; then the
+        // cells open on each plane in turn, from those on the plane below.
+        let mut opens = vec![Vec::new(); planes.len() + 1];
+        let mut closes = vec![Vec::new(); planes.len() + 1];
+        all.held = gaps.list.iter().map(|gap| all.holding(gap)).collect();
         for c in 0..gaps.starts.len() - 1 {
-            for gap in gaps.of(c) {
-                let (word, bit) = all.bit(c);
-                for k in all.holding(gap) {
-                    let plane = &mut all.list[all.order[k]];
-                    plane.open[word] |= bit;
-                    plane.open_cells += 1;
+            for held in &all.held[gaps.starts[c]..gaps.starts[c + 1]] {
+                if !held.is_empty() {
+                    opens[held.start].push(c);
+                    closes[held.end].push(c);
                 }
             }
         }
-        for plane in &mut all.list {
+        let mut open = vec![0; dims[0] * row_words];
+        for (k, (opening, closing)) in opens.iter().zip(&closes).take(planes.len()).enumerate() {
+            // A cell's gaps do not overlap: one that ends here goes before one that starts.
+            for &c in closing {
+                let (word, bit) = all.bit(c);
+                open[word] &= !bit;
+            }
+            for &c in opening {
+                let (word, bit) = all.bit(c);
+                open[word] |= bit;
+            }
+            let plane = &mut all.list[all.order[k]];
+            plane.open.copy_from_slice(&open);
+            plane.open_cells = open.iter().map(|w| w.count_ones() as usize).sum();
             plane.bound = plane.open_cells;
         }
         all
@@ -473,12 +491,12 @@ impl Planes {
         first..end.max(first)
     }
 
-    /// Closes cell `c` on every plane its `gap` holds: a quad now fills that gap there. A plane
-    /// whose best rectangle held the cell has only a bound left.
-    fn close(&mut self, c: usize, gap: &Gap) {
+    /// Closes cell `c` on every plane its gap (by index in [`Gaps::list`]) holds: a quad now
+    /// fills that gap there. A plane whose best rectangle held the cell has only a bound left.
+    fn close(&mut self, c: usize, gap: usize) {
         let (word, bit) = self.bit(c);
         let (u, v) = (c / self.nv, c % self.nv);
-        for k in self.holding(gap) {
+        for k in self.held[gap].clone() {
             let plane = &mut self.list[self.order[k]];
             if plane.open[word] & bit == 0 {
                 continue;
@@ -657,14 +675,15 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
         for (u, v) in rect.iter() {
             let c = u * nv + v;
-            let gap = gaps
+            let k = gaps
                 .of(c)
                 .iter()
-                .find(|gap| gap.holds(plane, margin))
+                .position(|gap| gap.holds(plane, margin))
                 .expect("the rectangle's cells hold the plane");
+            let gap = gaps.of(c)[k];
             lo = lo.max(gap.lo);
             hi = hi.min(gap.hi);
-            planes.close(c, gap);
+            planes.close(c, gaps.starts[c] + k);
         }
         planes.bound_around(&rect);
         let t = 0.5 * (lo + hi);

@@ -322,30 +322,28 @@ impl State<'_> {
     /// Drops pieces that later ones made redundant (no pixel of their own), so that a later
     /// fill can spend their triangles. Whether any went.
     fn prune(&mut self) -> bool {
-        let mut counts = vec![0u16; self.words * 64];
-        let set_bits = |mask: &SparseMask| {
-            mask.iter()
-                .flat_map(|&(w, word)| {
-                    (0..64)
-                        .filter(move |b| word >> b & 1 == 1)
-                        .map(move |b| w as usize * 64 + b)
-                })
-                .collect::<Vec<usize>>()
-        };
-        let pixels: Vec<Vec<usize>> = self.chosen.iter().map(|c| set_bits(&self.masks[c.0])).collect();
-        for p in pixels.iter().flatten() {
-            counts[*p] += 1;
-        }
         let mut keep = vec![true; self.chosen.len()];
+        let (mut once, mut more) = (vec![0u64; self.words], vec![0u64; self.words]);
         loop {
-            let own = |k: usize| pixels[k].iter().filter(|&&p| counts[p] == 1).count();
-            let Some(k) = (0..self.chosen.len()).find(|&k| keep[k] && own(k) == 0) else {
+            // The pixels the kept pieces cover once, and those they cover more than once.
+            once.fill(0);
+            more.fill(0);
+            for (c, _) in self.chosen.iter().zip(&keep).filter(|(_, kept)| **kept) {
+                for &(w, word) in &self.masks[c.0] {
+                    let w = w as usize;
+                    more[w] |= once[w] & word;
+                    once[w] = (once[w] ^ word) & !more[w];
+                }
+            }
+            let own = |k: usize| {
+                self.masks[self.chosen[k].0]
+                    .iter()
+                    .any(|&(w, word)| word & once[w as usize] != 0)
+            };
+            let Some(k) = (0..self.chosen.len()).find(|&k| keep[k] && !own(k)) else {
                 break;
             };
             keep[k] = false;
-            for p in &pixels[k] {
-                counts[*p] -= 1;
-            }
         }
         if keep.iter().all(|&k| k) {
             return false;

@@ -381,6 +381,7 @@ struct PlaneCells {
     /// An upper bound on the cells of the largest open rectangle; exact when `state` says so.
     bound: usize,
     state: Bound,
+    /// How many of its cells are open.
     open_cells: usize,
     /// Whether the rectangle being taken has closed a cell of it.
     touched: bool,

@@ -578,9 +578,7 @@ impl Planes {
         plane.bound = plane.best.map_or(0, |r| r.cells());
         plane.state = Bound::Exact;
     }
-}
 
-impl Planes {
     /// A plane next to plane `i` in height, or next to one of those, with the same open cells
     /// and an exact best: the best a search of `i` would find. Planes a few cells apart in a
     /// thick part of the solid often agree.
@@ -676,15 +674,15 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
         for (u, v) in rect.iter() {
             let c = u * nv + v;
-            let k = gaps
-                .of(c)
-                .iter()
-                .position(|gap| gap.holds(plane, margin))
-                .expect("the rectangle's cells hold the plane");
-            let gap = gaps.of(c)[k];
-            lo = lo.max(gap.lo);
-            hi = hi.min(gap.hi);
-            planes.close(c, gaps.starts[c] + k);
+            let k = gaps.starts[c]
+                + gaps
+                    .of(c)
+                    .iter()
+                    .position(|gap| gap.holds(plane, margin))
+                    .expect("the rectangle's cells hold the plane");
+            lo = lo.max(gaps.list[k].lo);
+            hi = hi.min(gaps.list[k].hi);
+            planes.close(c, k);
         }
         planes.bound_around(&rect);
         let t = 0.5 * (lo + hi);
@@ -702,7 +700,7 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::occluder::rectangle::largest;
+    use crate::occluder::rectangle::{bit_rows, largest};
 
     #[test]
     fn band_heights_are_those_of_the_strip_clipped_to_each_band() {
@@ -718,8 +716,14 @@ mod tests {
             let (origin, cell) = (0.0, 0.5);
             let lo = tri.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
             let hi = tri.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max);
-            let first = ((lo - origin) / cell - 1.0).ceil().max(0.0) as usize;
-            let bands = first..((hi - origin) / cell).floor() as usize + 1;
+            let g = AxisGrid {
+                turn: DQuat::IDENTITY,
+                axis: 2,
+                origin: [0.0, origin],
+                cell,
+                dims: [1, 7],
+            };
+            let bands = g.range(1, lo, hi);
             let polygon = Polygon::triangle(&tri);
             polygon.band_heights(origin, cell, bands.clone(), &mut heights);
             for (k, &(t0, t1)) in bands.zip(&heights) {
@@ -758,11 +762,7 @@ mod tests {
             if leave_one {
                 mask[u0 * nv + v0] = true;
             }
-            let mut open = vec![0u64; nu * row_words];
-            for (c, _) in mask.iter().enumerate().filter(|(_, open)| **open) {
-                open[c / nv * row_words + c % nv / 64] |= 1 << (c % nv % 64);
-            }
-            let around = open_around(&open, row_words, &rect);
+            let around = open_around(&bit_rows(&mask, nu, nv), row_words, &rect);
             if leave_one {
                 assert_eq!(around, None);
             } else {

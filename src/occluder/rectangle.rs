@@ -23,7 +23,7 @@ pub fn largest(mask: &[bool], nu: usize, nv: usize, min_side: usize) -> Option<C
 }
 
 /// A `nu` × `nv` mask as [`Sweep::run`] reads it: each row's cells as bits, in whole words.
-fn bit_rows(mask: &[bool], nu: usize, nv: usize) -> Vec<u64> {
+pub fn bit_rows(mask: &[bool], nu: usize, nv: usize) -> Vec<u64> {
     let words = nv.div_ceil(64);
     let mut bits = vec![0u64; nu * words];
     for (c, _) in mask.iter().enumerate().filter(|(_, open)| **open) {

@@ -71,23 +71,80 @@ pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEd
 /// The solid angle of the triangle (a, b, c) seen from the origin (Van Oosterom & Strackee),
 /// positive when the triangle winds counter-clockwise as seen from the origin's far side.
 pub fn solid_angle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    let half = half_solid_angle(a, b, c);
+    2.0 * half.y.atan2(half.x)
+}
+
+/// A complex number whose argument is half of [`solid_angle`]: (denominator, numerator).
+fn half_solid_angle(a: DVec3, b: DVec3, c: DVec3) -> DVec2 {
     let (la, lb, lc) = (a.length(), b.length(), c.length());
     let numerator = a.dot(b.cross(c));
     let denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
-    2.0 * numerator.atan2(denominator)
+    DVec2::new(denominator, numerator)
 }
 
 /// The curtain's share of w(p), from the open boundary alone.
+///
+/// The sum of the edges' half solid angles is the argument of the product of their complex
+/// numbers, plus the whole turns it made: one atan2 for the point instead of one per edge.
 pub fn boundary_term(mesh: &Mesh, boundary: &[BoundaryEdge], p: DVec3) -> f64 {
-    let sum: f64 = boundary
-        .iter()
-        .map(|e| {
-            let a = mesh.positions[e.a as usize].as_dvec3() - p;
-            let b = mesh.positions[e.b as usize].as_dvec3() - p;
-            f64::from(e.weight) * solid_angle(a, b, DVec3::NEG_Z)
-        })
-        .sum();
-    sum / (4.0 * PI)
+    let mut angle = Angle::ZERO;
+    for e in boundary {
+        let a = mesh.positions[e.a as usize].as_dvec3() - p;
+        let b = mesh.positions[e.b as usize].as_dvec3() - p;
+        let half = half_solid_angle(a, b, DVec3::NEG_Z);
+        // An edge taken backwards turns the other way.
+        let half = if e.weight < 0 {
+            DVec2::new(half.x, -half.y)
+        } else {
+            half
+        };
+        for _ in 0..e.weight.unsigned_abs() {
+            angle.add(half);
+        }
+    }
+    // Ω = 2·(half angles), w = Ω / 4π.
+    angle.radians() / PI * 0.5
+}
+
+/// A sum of arguments of complex numbers, kept as their product and the whole turns it made.
+struct Angle {
+    product: DVec2,
+    turns: i64,
+}
+
+impl Angle {
+    const ZERO: Angle = Angle {
+        product: DVec2::X,
+        turns: 0,
+    };
+
+    /// Adds the argument of `z`, in (-π, π] as atan2 gives it.
+    fn add(&mut self, z: DVec2) {
+        // atan2(0, 0) is 0.
+        if z == DVec2::ZERO {
+            return;
+        }
+        let p = self.product;
+        let mut q = DVec2::new(p.x * z.x - p.y * z.y, p.x * z.y + p.y * z.x);
+        // Both arguments in [0, π] and the product's below: the sum passed π. Both in (-π, 0)
+        // and the product's in [0, π]: it reached -π. Otherwise their sum is the product's.
+        // The product's own sign decides, so a sum that rounds across π stays consistent.
+        q.y += 0.0; // -0 as +0: the upper half plane, as atan2 reads it
+        if p.y >= 0.0 && z.y >= 0.0 && q.y < 0.0 {
+            self.turns += 1;
+        } else if p.y < 0.0 && z.y < 0.0 && q.y >= 0.0 {
+            self.turns -= 1;
+        }
+        // Scaled by a power of two, exactly, to [1, 2) in its larger part, so that the product
+        // neither overflows nor vanishes: the exponent's bits give the power.
+        let exponent = q.x.abs().max(q.y.abs()).to_bits() >> 52;
+        self.product = q * f64::from_bits(((2046 - exponent as i64).clamp(1, 2046) as u64) << 52);
+    }
+
+    fn radians(&self) -> f64 {
+        self.product.y.atan2(self.product.x) + std::f64::consts::TAU * self.turns as f64
+    }
 }
 
 /// w(p) by its definition, summing every triangle: the reference the fast forms are tested on.
@@ -206,5 +263,50 @@ impl<'a> WindingField<'a> {
             }
         }
         (sum, count)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_boundary_term_is_the_sum_of_each_edges_solid_angle() {
+        let mut rng = fastrand::Rng::with_seed(11);
+        let mut mesh = Mesh::default();
+        let mut point = || glam::Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0;
+        mesh.positions = (0..300).map(|_| point()).collect();
+        // Edges in every direction, some taken backwards or more than once.
+        let boundary: Vec<BoundaryEdge> = (0..600)
+            .map(|k| BoundaryEdge {
+                a: rng.u32(0..300),
+                b: rng.u32(0..300),
+                weight: [1, -1, 2, -3][k % 4],
+            })
+            .collect();
+        let mut turns = 0;
+        for k in 0..500 {
+            // Points among the edges, and on some of their ends.
+            let p = match k % 10 {
+                0 => mesh.positions[rng.usize(0..300)].as_dvec3(),
+                _ => DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 3.0 - 1.5,
+            };
+            let one_by_one: f64 = boundary
+                .iter()
+                .map(|e| {
+                    let a = mesh.positions[e.a as usize].as_dvec3() - p;
+                    let b = mesh.positions[e.b as usize].as_dvec3() - p;
+                    f64::from(e.weight) * solid_angle(a, b, DVec3::NEG_Z)
+                })
+                .sum::<f64>()
+                / (4.0 * PI);
+            let term = boundary_term(&mesh, &boundary, p);
+            assert!(
+                (term - one_by_one).abs() < 1e-9,
+                "point {k}: {term} against {one_by_one}"
+            );
+            turns += usize::from(one_by_one.abs() > 1.0);
+        }
+        assert!(turns > 50, "{turns} points where the angles turn more than once");
     }
 }

@@ -125,14 +125,15 @@ fn fill_perspective(view: &View, tri: &[DVec3; 3], q: [DVec3; 3], coverage: Cove
         }
     }
     for k in 1..corners.saturating_sub(1) {
-        let p = [poly[0], poly[k], poly[k + 1]].map(|q| DVec3::new(q.x, q.y, 1.0 / q.z));
-        fill(view, p, coverage, |w| 1.0 / w, visit);
+        fill(view, [poly[0], poly[k], poly[k + 1]], coverage, |d| 1.0 / d, visit);
     }
 }
 
-/// Visits the pixels of the screen triangle `p` (x, y, a value that varies linearly on screen)
-/// by `coverage`, with `depth` turning the interpolated value into a depth.
-fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, depth: impl Fn(f64) -> f64, visit: &mut impl Pixels) {
+/// Visits the pixels of the screen triangle `p` (x, y, depth) by `coverage`, interpolating
+/// `along(depth)` across the screen: the depth itself (orthographic), or its reciprocal
+/// (perspective), which is what varies linearly there. Either is its own inverse, and turns an
+/// interpolated value back into a depth.
+fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, along: impl Fn(f64) -> f64, visit: &mut impl Pixels) {
     let q = p.map(|v| v.truncate());
     let lo = q[0].min(q[1]).min(q[2]);
     let hi = q[0].max(q[1]).max(q[2]);
@@ -161,14 +162,16 @@ fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, depth: impl Fn(f64) -> f
     if area == 0.0 || !area.is_finite() {
         return;
     }
+    // Only for a triangle with pixels to draw: a perspective view's reciprocals divide.
+    let p = p.map(|v| DVec3::new(v.x, v.y, along(v.z)));
     let span = Span {
         x: (x0, x1),
         y: (y0, y1),
     };
     match coverage {
-        Coverage::Whole => fill_whole(view, p, area, span, depth, visit),
-        Coverage::Centres => fill_centres(view, p, area, [false; 3], span, depth, visit),
-        Coverage::Eroded(eroded) => fill_centres(view, p, area, eroded, span, depth, visit),
+        Coverage::Whole => fill_whole(view, p, area, span, along, visit),
+        Coverage::Centres => fill_centres(view, p, area, [false; 3], span, along, visit),
+        Coverage::Eroded(eroded) => fill_centres(view, p, area, eroded, span, along, visit),
     }
 }
 
@@ -243,20 +246,35 @@ fn fill_centres<V: Pixels>(
         0.0 => f <= 0.0,
         inset => f / area >= inset,
     };
+    // Depths weigh the corners by edge function times this, not over the area: three
+    // multiplications a pixel instead of three divisions.
+    let per_area = 1.0 / area;
+    let depth_at = |f: [f64; 3]| depth(interpolate(&p, f.map(|f| f * per_area)));
+    // The edges' functions at the centres of row y are `function(k, x)` of its `rows`.
+    let rows = |y: usize| edges.map(|(e, o)| e.x * ((y as f64 + 0.5) - o.y));
+    let in_row = |rows: [f64; 3]| move |k: usize, x: usize| rows[k] - edges[k].0.y * ((x as f64 + 0.5) - edges[k].1.x);
+    let (x0, x1) = span.x;
+    if !V::RUNS && (x1 - x0 + 1) * (span.y.1 - span.y.0 + 1) <= SMALL {
+        // Few pixels: each tested alone, with the same operations.
+        for y in span.y.0..=span.y.1 {
+            let function = in_row(rows(y));
+            for x in x0..=x1 {
+                let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
+                if holds(0, f[0]) & holds(1, f[1]) & holds(2, f[2]) {
+                    visit.pixel(y * view.pixels + x, depth_at(f));
+                }
+            }
+        }
+        return;
+    }
     // Along a row each edge's function is monotone, rounding and all: an edge whose function
     // rises towards the triangle's side only starts to hold, the others only stop. The run of
     // pixels drawn starts where the last rising edge holds, found by bisection, and ends before
     // the first other edge stops holding: found by bisection too for a sink of runs or a long
     // row, else as the pixels are drawn (most runs of a detailed mesh are a pixel or two long).
     let rising = edges.map(|(e, _)| e.y * area < 0.0);
-    // Depths weigh the corners by edge function times this, not over the area: three
-    // multiplications a pixel instead of three divisions.
-    let per_area = 1.0 / area;
-    let (x0, x1) = span.x;
     for y in span.y.0..=span.y.1 {
-        let centre_y = y as f64 + 0.5;
-        let rows = edges.map(|(e, o)| e.x * (centre_y - o.y));
-        let function = |k: usize, x: usize| rows[k] - edges[k].0.y * ((x as f64 + 0.5) - edges[k].1.x);
+        let function = in_row(rows(y));
         let first = first_where(x0, x1 + 1, |x| (0..3).all(|k| !rising[k] || holds(k, function(k, x))));
         let ends_after = |x| (0..3).any(|k| !rising[k] && !holds(k, function(k, x)));
         if V::RUNS {
@@ -266,7 +284,6 @@ fn fill_centres<V: Pixels>(
             }
             continue;
         }
-        let depth_at = |f: [f64; 3]| depth(interpolate(&p, f.map(|f| f * per_area)));
         let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
         if x1 + 1 - first >= LONG_ROW {
             // A long row's end is bisected too, and its pixels drawn without tests.
@@ -284,6 +301,9 @@ fn fill_centres<V: Pixels>(
         }
     }
 }
+
+/// Candidate pixels up to which a triangle's are each tested alone.
+const SMALL: usize = 4;
 
 /// Pixels left in a row from which a depth image's run ends by bisection.
 const LONG_ROW: usize = 8;

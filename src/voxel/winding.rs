@@ -43,26 +43,31 @@ pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEd
             }
             return;
         }
-        let term = |z: usize| boundary_term(mesh, boundary, grid.center(c / ny, c % ny, z));
+        let centre = |z: &usize| grid.center(c / ny, c % ny, *z);
         let mut samples: Vec<usize> = (0..nz).step_by(STRIDE).collect();
         if samples.last() != Some(&(nz - 1)) {
             samples.push(nz - 1);
         }
-        let terms: Vec<f64> = samples.iter().map(|&z| term(z)).collect();
+        let terms = boundary_terms(mesh, boundary, &samples.iter().map(centre).collect::<Vec<_>>());
         for (&z, &b) in samples.iter().zip(&terms) {
             column[z] = counts[z] + b >= 0.5;
         }
+        let mut exact = Vec::new();
         for k in 1..samples.len() {
             let (z0, z1, b0, b1) = (samples[k - 1], samples[k], terms[k - 1], terms[k]);
             let smooth = (b1 - b0).abs() < MAX_STEP;
             for z in z0 + 1..z1 {
                 let estimate = counts[z] + b0 + (b1 - b0) * (z - z0) as f64 / (z1 - z0) as f64;
-                column[z] = if smooth && (estimate - 0.5).abs() > MARGIN {
-                    estimate >= 0.5
+                if smooth && (estimate - 0.5).abs() > MARGIN {
+                    column[z] = estimate >= 0.5;
                 } else {
-                    counts[z] + term(z) >= 0.5
-                };
+                    exact.push(z);
+                }
             }
+        }
+        let terms = boundary_terms(mesh, boundary, &exact.iter().map(centre).collect::<Vec<_>>());
+        for (&z, &b) in exact.iter().zip(&terms) {
+            column[z] = counts[z] + b >= 0.5;
         }
     });
     inside
@@ -84,30 +89,43 @@ fn half_solid_angle(a: DVec3, b: DVec3, c: DVec3) -> DVec2 {
 }
 
 /// The curtain's share of w(p), from the open boundary alone.
+pub fn boundary_term(mesh: &Mesh, boundary: &[BoundaryEdge], p: DVec3) -> f64 {
+    boundary_terms(mesh, boundary, &[p])[0]
+}
+
+/// [`boundary_term`] at each of `points`.
 ///
 /// The sum of the edges' half solid angles is the argument of the product of their complex
-/// numbers, plus the whole turns it made: one atan2 for the point instead of one per edge.
-pub fn boundary_term(mesh: &Mesh, boundary: &[BoundaryEdge], p: DVec3) -> f64 {
-    let mut angle = Angle::ZERO;
+/// numbers, plus the whole turns it made: one atan2 a point instead of one an edge. Edge by
+/// edge, the points' products grow side by side, none waiting on the last multiplication.
+pub fn boundary_terms(mesh: &Mesh, boundary: &[BoundaryEdge], points: &[DVec3]) -> Vec<f64> {
+    if points.is_empty() {
+        return Vec::new();
+    }
+    let mut angles = vec![Angle::ZERO; points.len()];
     for e in boundary {
-        let a = mesh.positions[e.a as usize].as_dvec3() - p;
-        let b = mesh.positions[e.b as usize].as_dvec3() - p;
-        let half = half_solid_angle(a, b, DVec3::NEG_Z);
-        // An edge taken backwards turns the other way.
-        let half = if e.weight < 0 {
-            DVec2::new(half.x, -half.y)
-        } else {
-            half
-        };
+        let (a, b) = (
+            mesh.positions[e.a as usize].as_dvec3(),
+            mesh.positions[e.b as usize].as_dvec3(),
+        );
         for _ in 0..e.weight.unsigned_abs() {
-            angle.add(half);
+            for (angle, &p) in angles.iter_mut().zip(points) {
+                let half = half_solid_angle(a - p, b - p, DVec3::NEG_Z);
+                // An edge taken backwards turns the other way.
+                angle.add(if e.weight < 0 {
+                    DVec2::new(half.x, -half.y)
+                } else {
+                    half
+                });
+            }
         }
     }
     // Ω = 2·(half angles), w = Ω / 4π.
-    angle.radians() / PI * 0.5
+    angles.iter().map(|angle| angle.radians() / PI * 0.5).collect()
 }
 
 /// A sum of arguments of complex numbers, kept as their product and the whole turns it made.
+#[derive(Clone, Copy)]
 struct Angle {
     product: DVec2,
     turns: i64,

@@ -14,20 +14,35 @@ use rayon::prelude::*;
 /// Calls `visit(pixel index, depth)` for every pixel centre the projected triangle covers.
 /// Edges are inclusive, so triangles sharing an edge leave no crack.
 pub fn rasterize(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f64)) {
-    rasterize_with(view, tri, Coverage::Centres, visit);
+    rasterize_with(view, tri, Coverage::Centres, Span::all(view), visit);
+}
+
+/// Like [`rasterize`], but only the pixels in columns `xs` and rows `ys`.
+pub fn rasterize_within(
+    view: &View,
+    tri: &[DVec3; 3],
+    xs: std::ops::RangeInclusive<usize>,
+    ys: std::ops::RangeInclusive<usize>,
+    visit: impl FnMut(usize, f64),
+) {
+    let within = Span {
+        x: (*xs.start(), *xs.end()),
+        y: (*ys.start(), *ys.end()),
+    };
+    rasterize_with(view, tri, Coverage::Centres, within, visit);
 }
 
 /// Like [`rasterize`], but only pixels the triangle covers whole, each with the farthest depth
 /// over the pixel: what an occluder certainly hides at this resolution.
 pub fn rasterize_inner(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f64)) {
-    rasterize_with(view, tri, Coverage::Whole, visit);
+    rasterize_with(view, tri, Coverage::Whole, Span::all(view), visit);
 }
 
 /// Like [`rasterize`], but where edge k (from corner k + 1 to corner k + 2) is flagged in
 /// `eroded`, only pixels whose whole square lies on the triangle's side of it: where a crack
 /// narrower than a pixel runs along that edge, the pixel sees what lies behind.
 pub fn rasterize_eroded(view: &View, tri: &[DVec3; 3], eroded: [bool; 3], visit: impl FnMut(usize, f64)) {
-    rasterize_with(view, tri, Coverage::Eroded(eroded), visit);
+    rasterize_with(view, tri, Coverage::Eroded(eroded), Span::all(view), visit);
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -40,11 +55,12 @@ enum Coverage {
     Eroded([bool; 3]),
 }
 
-fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, visit: impl FnMut(usize, f64)) {
+fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, within: Span, visit: impl FnMut(usize, f64)) {
     let mut pixels = EachPixel(visit);
+    let q = tri.map(|v| view.project(v));
     match view.lens {
-        Lens::Orthographic { .. } => fill(view, tri.map(|v| view.project(v)), coverage, |d| d, &mut pixels),
-        Lens::Perspective { .. } => fill_perspective(view, tri, tri.map(|v| view.project(v)), coverage, &mut pixels),
+        Lens::Orthographic { .. } => fill(view, q, coverage, |d| d, within, &mut pixels),
+        Lens::Perspective { .. } => fill_perspective(view, tri, q, coverage, within, &mut pixels),
     }
 }
 
@@ -108,7 +124,14 @@ impl Pixels for Bits<'_> {
 /// A triangle of a perspective view, `tri` in the world and `q` its corners as
 /// [`View::project`] gives them, clipped to the near plane in front of the eye: 1/z is what
 /// varies linearly on screen.
-fn fill_perspective(view: &View, tri: &[DVec3; 3], q: [DVec3; 3], coverage: Coverage, visit: &mut impl Pixels) {
+fn fill_perspective(
+    view: &View,
+    tri: &[DVec3; 3],
+    q: [DVec3; 3],
+    coverage: Coverage,
+    within: Span,
+    visit: &mut impl Pixels,
+) {
     let near = view.depth_tolerance();
     // A triangle clipped by one plane has at most four corners.
     let (mut poly, mut corners) = ([DVec3::ZERO; 4], 0);
@@ -125,19 +148,32 @@ fn fill_perspective(view: &View, tri: &[DVec3; 3], q: [DVec3; 3], coverage: Cove
         }
     }
     for k in 1..corners.saturating_sub(1) {
-        fill(view, [poly[0], poly[k], poly[k + 1]], coverage, |d| 1.0 / d, visit);
+        fill(
+            view,
+            [poly[0], poly[k], poly[k + 1]],
+            coverage,
+            |d| 1.0 / d,
+            within,
+            visit,
+        );
     }
 }
 
 /// Visits the pixels of the screen triangle `p` (x, y, depth) by `coverage`, interpolating
 /// `along(depth)` across the screen: the depth itself (orthographic), or its reciprocal
 /// (perspective), which is what varies linearly there. Either is its own inverse, and turns an
-/// interpolated value back into a depth.
-fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, along: impl Fn(f64) -> f64, visit: &mut impl Pixels) {
+/// interpolated value back into a depth. Only pixels `within` are visited.
+fn fill(
+    view: &View,
+    p: [DVec3; 3],
+    coverage: Coverage,
+    along: impl Fn(f64) -> f64,
+    within: Span,
+    visit: &mut impl Pixels,
+) {
     let q = p.map(|v| v.truncate());
     let lo = q[0].min(q[1]).min(q[2]);
     let hi = q[0].max(q[1]).max(q[2]);
-    let n = view.pixels as f64;
     // The pixels i whose sample points (the centre i + 0.5, or the whole [i, i + 1]) lie in
     // [lo, hi]. Most triangles of a detailed mesh cover none, so this comes first, without
     // rounding calls.
@@ -145,8 +181,8 @@ fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, along: impl Fn(f64) -> f
         Coverage::Centres | Coverage::Eroded(_) => (0.5, 0.5),
         Coverage::Whole => (0.0, 1.0),
     };
-    let pixels = |lo: f64, hi: f64| -> Option<(usize, usize)> {
-        let (a, b) = ((lo - inset).max(0.0), (hi - reach).min(n - 1.0));
+    let pixels = |lo: f64, hi: f64, (first, last): (usize, usize)| -> Option<(usize, usize)> {
+        let (a, b) = ((lo - inset).max(first as f64), (hi - reach).min(last as f64));
         // Also rejects NaN.
         if a.partial_cmp(&b).is_none_or(|o| o.is_gt()) {
             return None;
@@ -155,7 +191,7 @@ fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, along: impl Fn(f64) -> f
         let last = b as usize;
         (first <= last).then_some((first, last))
     };
-    let (Some((x0, x1)), Some((y0, y1))) = (pixels(lo.x, hi.x), pixels(lo.y, hi.y)) else {
+    let (Some((x0, x1)), Some((y0, y1))) = (pixels(lo.x, hi.x, within.x), pixels(lo.y, hi.y, within.y)) else {
         return;
     };
     let area = cross(q[1] - q[0], q[2] - q[0]);
@@ -180,6 +216,17 @@ fn fill(view: &View, p: [DVec3; 3], coverage: Coverage, along: impl Fn(f64) -> f
 struct Span {
     x: (usize, usize),
     y: (usize, usize),
+}
+
+impl Span {
+    /// Every pixel of the view.
+    fn all(view: &View) -> Span {
+        let last = view.pixels - 1;
+        Span {
+            x: (0, last),
+            y: (0, last),
+        }
+    }
 }
 
 /// The value of `p`'s third coordinate at barycentric weights `w`.
@@ -335,18 +382,32 @@ pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
 
 /// [`rasterize_mesh`] into any [`Pixels`].
 fn fill_mesh(view: &View, mesh: &Mesh, visit: &mut impl Pixels) {
+    let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
+    let all = Span::all(view);
     match view.lens {
         Lens::Orthographic { .. } => {
-            let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
             for t in &mesh.triangles {
-                fill(view, t.map(|i| projected[i as usize]), Coverage::Centres, |d| d, visit);
+                fill(
+                    view,
+                    t.map(|i| projected[i as usize]),
+                    Coverage::Centres,
+                    |d| d,
+                    all,
+                    visit,
+                );
             }
         }
         Lens::Perspective { .. } => {
-            let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
             for t in &mesh.triangles {
                 let tri = t.map(|i| mesh.positions[i as usize].as_dvec3());
-                fill_perspective(view, &tri, t.map(|i| projected[i as usize]), Coverage::Centres, visit);
+                fill_perspective(
+                    view,
+                    &tri,
+                    t.map(|i| projected[i as usize]),
+                    Coverage::Centres,
+                    all,
+                    visit,
+                );
             }
         }
     }

@@ -25,7 +25,7 @@ pub mod gpu;
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::{depth_images, rasterize, rasterize_eroded};
+use crate::geom::raster::{depth_images, rasterize, rasterize_eroded, rasterize_within};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::Grid;
@@ -373,13 +373,8 @@ impl OpenViews {
         let lo = corners[0].min(corners[1]).min(corners[2]);
         let hi = corners[0].max(corners[1]).max(corners[2]);
         let tiles = PIXELS / TILE;
-        let range = |a: f64, b: f64| {
-            let a = ((a - 0.5) / TILE as f64).floor().clamp(0.0, (tiles - 1) as f64) as usize;
-            let b = ((b + 0.5) / TILE as f64).floor().clamp(0.0, (tiles - 1) as f64) as usize;
-            a..=b
-        };
-        let farthest = range(lo.y, hi.y)
-            .flat_map(|ty| range(lo.x, hi.x).map(move |tx| ty * tiles + tx))
+        let farthest = tile_range(lo.y, hi.y)
+            .flat_map(|ty| tile_range(lo.x, hi.x).map(move |tx| ty * tiles + tx))
             .map(|t| self.tiles[v * tiles * tiles + t])
             .fold(0f32, f32::max);
         let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
@@ -394,15 +389,95 @@ impl OpenViews {
             &self.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS],
         );
         let (tolerance, horizon) = (view.depth_tolerance(), self.horizon(v));
-        rasterize(view, triangle, |i, d| {
+        let mut visit = |i: usize, d: f64| {
             if d < f64::from(depth[i]) - tolerance {
                 let p = view.unproject(i, d);
                 if horizon.is_none_or(|h| p.y <= h) {
                     seen(p);
                 }
             }
-        });
+        };
+        if horizon.is_some() {
+            rasterize(view, triangle, visit);
+            return;
+        }
+        // An orthographic view draws only the runs of tiles where the triangle may lie in front
+        // of the tile's farthest depth: elsewhere no pixel of it shows.
+        let nearest = NearestDepth::new(triangle.map(|p| view.project(p)), self.pixel * PIXELS as f64);
+        let tiles = PIXELS / TILE;
+        let far = &self.tiles[v * tiles * tiles..(v + 1) * tiles * tiles];
+        let hidden = |tx: usize, ty: usize| {
+            let centres = |t: usize| [(t * TILE) as f64 + 0.5, ((t + 1) * TILE) as f64 - 0.5];
+            nearest.over(centres(tx), centres(ty)) >= f64::from(far[ty * tiles + tx]) - tolerance
+        };
+        let (columns, rows) = nearest.tiles();
+        for ty in rows {
+            let mut tx = *columns.start();
+            while tx <= *columns.end() {
+                if hidden(tx, ty) {
+                    tx += 1;
+                    continue;
+                }
+                let first = tx;
+                while tx < *columns.end() && !hidden(tx + 1, ty) {
+                    tx += 1;
+                }
+                let (xs, ys) = (first * TILE..=(tx + 1) * TILE - 1, ty * TILE..=(ty + 1) * TILE - 1);
+                rasterize_within(view, triangle, xs, ys, &mut visit);
+                tx += 1;
+            }
+        }
     }
+}
+
+/// A lower bound on the depth of a triangle of an orthographic view over a rectangle of the
+/// screen: the lower of its plane's depths at the rectangle's corners, and no lower than its
+/// nearest corner.
+struct NearestDepth {
+    corners: [DVec3; 3],
+    /// Depth per pixel along x and y, where the triangle spans an area on screen.
+    slope: Option<[f64; 2]>,
+    /// What rounding may take off a depth the rasterizer interpolates.
+    margin: f64,
+}
+
+impl NearestDepth {
+    /// `corners` as [`View::project`] gives them; `depths` is the range of the view's depths.
+    fn new(corners: [DVec3; 3], depths: f64) -> NearestDepth {
+        let (a, b) = (corners[1] - corners[0], corners[2] - corners[0]);
+        let area = a.x * b.y - a.y * b.x;
+        let slope = [(a.z * b.y - b.z * a.y) / area, (b.z * a.x - a.z * b.x) / area];
+        NearestDepth {
+            corners,
+            slope: slope.iter().all(|s| s.is_finite()).then_some(slope),
+            margin: 1e-9 * depths,
+        }
+    }
+
+    /// The lowest depth over x in `xs` and y in `ys` (each [low, high]).
+    fn over(&self, xs: [f64; 2], ys: [f64; 2]) -> f64 {
+        let c = self.corners;
+        let nearest_corner = c[0].z.min(c[1].z).min(c[2].z);
+        let on_plane = self.slope.map_or(f64::NEG_INFINITY, |[sx, sy]| {
+            let low = |s: f64, range: [f64; 2], at: f64| (s * (range[0] - at)).min(s * (range[1] - at));
+            c[0].z + low(sx, xs, c[0].x) + low(sy, ys, c[0].y)
+        });
+        on_plane.max(nearest_corner) - self.margin
+    }
+
+    /// The tiles, by column and row, under the triangle's screen bounds.
+    fn tiles(&self) -> (std::ops::RangeInclusive<usize>, std::ops::RangeInclusive<usize>) {
+        let c = self.corners;
+        let (lo, hi) = (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]));
+        (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y))
+    }
+}
+
+/// The tiles whose pixel centres may lie in [a, b] along one axis of the screen.
+fn tile_range(a: f64, b: f64) -> std::ops::RangeInclusive<usize> {
+    let last = (PIXELS / TILE - 1) as f64;
+    let tile = |x: f64| (x / TILE as f64).floor().clamp(0.0, last) as usize;
+    tile(a - 0.5)..=tile(b + 0.5)
 }
 
 /// The farthest depth of each TILE × TILE tile, into `out` (zeroed).
@@ -592,6 +667,41 @@ mod tests {
     /// Just under the cube's top, beside the middle.
     fn under_the_top() -> Panel {
         panel([[0.45, 0.9, 0.3], [0.499, 0.9, 0.3], [0.499, 0.9, 0.7], [0.45, 0.9, 0.7]])
+    }
+
+    #[test]
+    fn tiles_behind_the_depths_hide_no_pixel_a_whole_triangle_shows() {
+        let views = views_of(split_cube(0.02));
+        let mut rng = fastrand::Rng::with_seed(9);
+        let (mut shown, mut hidden) = (0, 0);
+        for case in 0..300 {
+            // Inside the cube, across its faces and the crack, large and small.
+            let scale = [0.05, 0.3, 1.2][case % 3];
+            let centre = DVec3::new(rng.f64(), rng.f64(), rng.f64());
+            let triangle: [DVec3; 3] =
+                std::array::from_fn(|_| centre + (DVec3::new(rng.f64(), rng.f64(), rng.f64()) - 0.5) * scale);
+            for v in (0..views.sky_views).step_by(9) {
+                let view = &views.views[v];
+                let depth = &views.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS];
+                let mut whole = Vec::new();
+                rasterize(view, &triangle, |i, d| {
+                    if d < f64::from(depth[i]) - view.depth_tolerance() {
+                        whole.push(view.unproject(i, d).to_array().map(f64::to_bits));
+                    }
+                });
+                let mut by_tiles = Vec::new();
+                views.visit_seen(v, &triangle, |p| by_tiles.push(p.to_array().map(f64::to_bits)));
+                whole.sort_unstable();
+                by_tiles.sort_unstable();
+                assert_eq!(whole, by_tiles, "case {case}, view {v}");
+                shown += whole.len();
+                hidden += usize::from(whole.is_empty());
+            }
+        }
+        assert!(
+            shown > 10_000 && hidden > 500,
+            "{shown} pixels shown, {hidden} triangles hidden"
+        );
     }
 
     #[test]

@@ -435,6 +435,8 @@ impl OpenViews {
 /// nearest corner.
 struct NearestDepth {
     corners: [DVec3; 3],
+    /// The depth of the nearest corner: no point of the triangle is nearer.
+    nearest_corner: f64,
     /// Depth per pixel along x and y, where the triangle spans an area on screen.
     slope: Option<[f64; 2]>,
     /// What rounding may take off a depth the rasterizer interpolates.
@@ -449,6 +451,7 @@ impl NearestDepth {
         let slope = [(a.z * b.y - b.z * a.y) / area, (b.z * a.x - a.z * b.x) / area];
         NearestDepth {
             corners,
+            nearest_corner: corners[0].z.min(corners[1].z).min(corners[2].z),
             slope: slope.iter().all(|s| s.is_finite()).then_some(slope),
             margin: 1e-9 * depths,
         }
@@ -457,12 +460,11 @@ impl NearestDepth {
     /// The lowest depth over x in `xs` and y in `ys` (each [low, high]).
     fn over(&self, xs: [f64; 2], ys: [f64; 2]) -> f64 {
         let c = self.corners;
-        let nearest_corner = c[0].z.min(c[1].z).min(c[2].z);
         let on_plane = self.slope.map_or(f64::NEG_INFINITY, |[sx, sy]| {
             let low = |s: f64, range: [f64; 2], at: f64| (s * (range[0] - at)).min(s * (range[1] - at));
             c[0].z + low(sx, xs, c[0].x) + low(sy, ys, c[0].y)
         });
-        on_plane.max(nearest_corner) - self.margin
+        on_plane.max(self.nearest_corner) - self.margin
     }
 
     /// The tiles, by column and row, under the triangle's screen bounds.

@@ -229,7 +229,6 @@ fn cook_voxels(
     let voxel_boxes = run.kind_stage(uses(Shape::Boxes), "boxes", || {
         boxes::expand(&inner, grid.dims, &expansion(cook))
     })?;
-    // Refinement and quads both look triangles up through it.
     let field = run.stage("refine", || WindingField::new(mesh, &topology.boundary))?;
     let refined = run.stage("refine", || {
         refine_boxes(mesh, &grid, &field, &inside.solid, &voxel_boxes, cook.refine)
@@ -240,7 +239,7 @@ fn cook_voxels(
         Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
     };
     let quads_found = run.kind_stage(uses(Shape::Quads), "quads", || {
-        find_quads(mesh, topology, &grid, &field, (&inside.solid, &surface), &inner, cook)
+        find_quads(mesh, topology, &grid, &inner, cook)
     })?;
     let quad_count = quads_found.len();
     let (mut panels, quads_shown) = match &open_views {
@@ -376,35 +375,20 @@ fn unexposed_boxes(views: &OpenViews, candidates: Vec<(WorldBox, WorldBox)>) -> 
         .unzip()
 }
 
-/// A closed surface's crossings decide exactly whether a quad lies inside; away from the
-/// surface its voxel grid already holds the same answer, since the winding number (and the
-/// parity) is constant in a voxel that no triangle touches. An open one's winding number varies
-/// away from the surface, so its inner voxels decide: those that no camera sees through an
-/// opening. The exposure test then checks each quad. cpsv decides by cells, so its inner voxels
-/// decide too.
-fn find_quads(
-    mesh: &Mesh,
-    topology: &Topology,
-    grid: &Grid,
-    field: &WindingField,
-    (solid, surface): (&[bool], &[bool]),
-    inner: &[bool],
-    cook: &CookSettings,
-) -> Vec<Panel> {
+/// A closed surface's crossings decide exactly whether a quad lies inside. An open one's
+/// winding number varies away from the surface, so its inner voxels decide: those that no
+/// camera sees through an opening. The exposure test then checks each quad. cpsv decides by
+/// cells, so its inner voxels decide too.
+fn find_quads(mesh: &Mesh, topology: &Topology, grid: &Grid, inner: &[bool], cook: &CookSettings) -> Vec<Panel> {
     let closed = topology.boundary.is_empty();
-    let exact = closed && matches!(cook.inside, InsideMethod::Winding | InsideMethod::Parity);
-    let inside = |p: DVec3| {
-        let voxel = grid.containing(p);
-        if !exact {
-            return voxel.is_some_and(|i| inner[i]);
-        }
-        match voxel {
-            Some(i) if !surface[i] => solid[i],
-            _ if cook.inside == InsideMethod::Parity => field.crossings_above(p).1 % 2 == 1,
-            _ => field.crossings_above(p).0 >= 1,
-        }
+    let inner_voxel = |p: DVec3| grid.containing(p).is_some_and(|i| inner[i]);
+    let solid = match cook.inside {
+        InsideMethod::Winding | InsideMethod::Parity if closed => quads::Solid::Closed {
+            parity: cook.inside == InsideMethod::Parity,
+        },
+        _ => quads::Solid::Points(&inner_voxel),
     };
-    quads::find(mesh, cook.quad_grid, &inside)
+    quads::find(mesh, cook.quad_grid, solid)
 }
 
 /// The quads no view sees; one that shows in part is cut down to its largest hidden rectangle.

@@ -5,7 +5,8 @@
 //! For each axis of a frame, each cell of a 2D grid over the other two axes is a prism along the
 //! axis. Every triangle that meets the prism, clipped to it, blocks the range of heights it spans
 //! there. Between two blocked ranges the prism's cross-section meets no surface, so it is inside
-//! or outside as a whole, and one point query decides which. A plane is open in a cell when it
+//! or outside as a whole, and one point query decides which: on a closed surface, the crossings
+//! of the cell's centre line above the gap, since they count the same in every direction. A plane is open in a cell when it
 //! lies in such an inside gap; a quad is a rectangle of cells in which one plane is open. The
 //! test holds for the cell's whole footprint, not only at a sample, so the quad is inside
 //! everywhere.
@@ -16,6 +17,7 @@
 use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape};
 use crate::mesh::{Mesh, point_bounds};
+use crate::voxel::columns::{Crossing, column_hit};
 use glam::{DQuat, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -81,9 +83,20 @@ impl AxisGrid {
     }
 }
 
+/// How a gap is told inside the solid or outside.
+#[derive(Clone, Copy)]
+pub enum Solid<'a> {
+    /// A closed surface: the crossings of the cell's centre line above the gap's middle, whose
+    /// signed sum is the winding number there and whose count's parity is the parity test, as
+    /// along any other ray. Inside where the sum is at least 1, or with `parity`, the count odd.
+    Closed { parity: bool },
+    /// Any other: the classification at a world point, asked at the gap's middle.
+    Points(&'a (dyn Fn(DVec3) -> bool + Sync)),
+}
+
 /// Quads inside the solid, up to `MAX_PER_AXIS` per axis and frame. `grid` is the number of
-/// cells along the mesh's longest side; `inside` is the solid classification at a world point.
-pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -> Vec<Panel> {
+/// cells along the mesh's longest side.
+pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
     let frames = [
         DQuat::IDENTITY,
         DQuat::from_rotation_x(FRAC_PI_4),
@@ -113,7 +126,8 @@ pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -
             };
             // Keeps quads clear of the surface by more than rounding to f32 can move them.
             let margin = 1e-6 * size;
-            let gaps = inside_gaps(mesh, &g, margin, inside);
+            let corners: Vec<[f64; 3]> = mesh.positions.iter().map(|p| g.uv(p.as_dvec3())).collect();
+            let gaps = inside_gaps(mesh, &corners, &g, margin, solid);
             let planes = candidate_planes(&gaps, lo[axis], hi[axis], cell);
             best_rectangles(&g, &gaps, &planes, margin)
         })
@@ -121,26 +135,27 @@ pub fn find(mesh: &Mesh, grid: usize, inside: &(dyn Fn(DVec3) -> bool + Sync)) -
 }
 
 /// For every cell, the gaps between blocked height ranges whose cross-section is inside.
-fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -> bool + Sync)) -> Gaps {
+/// `corners` are the mesh's vertices in grid coordinates.
+fn inside_gaps(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, margin: f64, solid: Solid) -> Gaps {
     let nv = g.dims[1];
     let cells = g.dims[0] * nv;
-    let blocked = blocked_ranges(mesh, g);
+    let blocked = blocked_ranges(mesh, corners, g);
     // Counting sort by cell.
     let mut starts = vec![0usize; cells + 1];
-    for &(c, _) in blocked.iter().flatten() {
-        starts[c as usize + 1] += 1;
+    for block in blocked.iter().flatten() {
+        starts[block.cell as usize + 1] += 1;
     }
     for c in 0..cells {
         starts[c + 1] += starts[c];
     }
-    let mut ranges = vec![(0.0f64, 0.0f64); starts[cells]];
+    let mut ranges = vec![Block::default(); starts[cells]];
     let mut next = starts.clone();
-    for &(c, heights) in blocked.iter().flatten() {
-        ranges[next[c as usize]] = heights;
-        next[c as usize] += 1;
+    for &block in blocked.iter().flatten() {
+        ranges[next[block.cell as usize]] = block;
+        next[block.cell as usize] += 1;
     }
     // A row of cells at a time: few allocations, and enough rows to share out.
-    let mut rows: Vec<&mut [(f64, f64)]> = Vec::with_capacity(g.dims[0]);
+    let mut rows: Vec<&mut [Block]> = Vec::with_capacity(g.dims[0]);
     let mut rest = ranges.as_mut_slice();
     for u in 0..g.dims[0] {
         let (head, tail) = rest.split_at_mut(starts[(u + 1) * nv] - starts[u * nv]);
@@ -152,24 +167,47 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
         .enumerate()
         .map(|(u, row)| {
             let (mut list, mut ends) = (Vec::new(), Vec::with_capacity(nv));
+            let (mut found, mut inside) = (Vec::new(), Vec::new());
             for v in 0..nv {
                 let c = u * nv + v;
                 let ranges = &mut row[starts[c] - starts[u * nv]..starts[c + 1] - starts[u * nv]];
-                ranges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+                ranges.sort_unstable_by(|a, b| a.heights.0.total_cmp(&b.heights.0));
                 let center = [
                     g.origin[0] + (u as f64 + 0.5) * g.cell,
                     g.origin[1] + (v as f64 + 0.5) * g.cell,
                 ];
+                // The gaps, each with the index of the first block above it.
+                found.clear();
                 let mut top = f64::NEG_INFINITY;
-                for &(t0, t1) in ranges.iter() {
+                for (k, block) in ranges.iter().enumerate() {
+                    let (t0, t1) = block.heights;
                     if top > f64::NEG_INFINITY && t0 - top > 2.0 * margin {
-                        let mid = 0.5 * (top + t0);
-                        if inside(g.point(center[0], center[1], mid)) {
-                            list.push(Gap { lo: top, hi: t0 });
-                        }
+                        found.push((k, Gap { lo: top, hi: t0 }));
                     }
                     top = top.max(t1);
                 }
+                inside.clear();
+                match solid {
+                    Solid::Points(at) => inside.extend(
+                        found
+                            .iter()
+                            .map(|(_, gap)| at(g.point(center[0], center[1], 0.5 * (gap.lo + gap.hi)))),
+                    ),
+                    Solid::Closed { parity } => {
+                        let crossing = |block: &Block| {
+                            let tri = mesh.triangles[block.triangle as usize].map(|i| corners[i as usize]);
+                            column_hit(&tri, center)
+                        };
+                        closed_gaps(&found, ranges, crossing, parity, &mut inside);
+                    }
+                }
+                list.extend(
+                    found
+                        .iter()
+                        .zip(&inside)
+                        .filter(|(_, inside)| **inside)
+                        .map(|((_, gap), _)| *gap),
+                );
                 ends.push(list.len());
             }
             (list, ends)
@@ -188,22 +226,78 @@ fn inside_gaps(mesh: &Mesh, g: &AxisGrid, margin: f64, inside: &(dyn Fn(DVec3) -
     gaps
 }
 
+/// Whether each gap of a cell of a closed surface is inside, into `inside`: `found` are the
+/// gaps, each with the index in `blocks` (sorted by lowest height) of the first block above
+/// it. The cell's centre line crosses only the blocks' triangles (`crossing`), and its
+/// crossings above a gap decide it; as all of them cancel out, so do those below, negated.
+/// The side with fewer blocks is counted.
+fn closed_gaps(
+    found: &[(usize, Gap)],
+    blocks: &[Block],
+    crossing: impl Fn(&Block) -> Option<Crossing<f64>>,
+    parity: bool,
+    inside: &mut Vec<bool>,
+) {
+    let (Some(&(first, _)), Some(&(last, _))) = (found.first(), found.last()) else {
+        return;
+    };
+    // The signed sum and the count of the crossings counted so far.
+    let (mut sum, mut count) = (0i32, 0u32);
+    let mut add = |blocks: &[Block]| {
+        for hit in blocks.iter().filter_map(&crossing) {
+            sum += i32::from(hit.sign);
+            count += 1;
+        }
+        (sum, count)
+    };
+    let decide = |above: i32, count: u32| if parity { count % 2 == 1 } else { above >= 1 };
+    if last <= blocks.len() - first {
+        let mut counted = 0;
+        for &(k, _) in found {
+            let (below, count) = add(&blocks[counted..k]);
+            counted = k;
+            inside.push(decide(-below, count));
+        }
+    } else {
+        let mut counted = blocks.len();
+        inside.resize(found.len(), false);
+        for (&(k, _), inside) in found.iter().zip(inside.iter_mut()).rev() {
+            let (above, count) = add(&blocks[k..counted]);
+            counted = k;
+            *inside = decide(above, count);
+        }
+    }
+}
+
+/// The range of heights a triangle blocks in a cell.
+#[derive(Clone, Copy, Default)]
+struct Block {
+    cell: u32,
+    triangle: u32,
+    heights: (f64, f64),
+}
+
 /// The heights each triangle blocks in each cell whose closed footprint it meets, by cell: in
 /// one list per share of the triangles, which the counting sort reads without joining them.
-fn blocked_ranges(mesh: &Mesh, g: &AxisGrid) -> Vec<Vec<(u32, (f64, f64))>> {
+fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Block>> {
     let nv = g.dims[1];
     (0..mesh.triangles.len())
         .into_par_iter()
         .fold(
             || (Vec::new(), Vec::new()),
             |(mut out, mut bands), t| {
-                let tri = mesh.corners(t).map(|p| g.uv(p.as_dvec3()));
+                let tri = mesh.triangles[t].map(|i| corners[i as usize]);
+                let block = |c: usize, heights| Block {
+                    cell: c as u32,
+                    triangle: t as u32,
+                    heights,
+                };
                 let lo = |k: usize| tri.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
                 let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
                 let (ru, rv) = (g.range(0, lo(0), hi(0)), g.range(1, lo(1), hi(1)));
                 if ru.len() == 1 && rv.len() == 1 {
                     // Wholly inside one cell: no clipping.
-                    out.push(((ru.start * nv + rv.start) as u32, (lo(2), hi(2))));
+                    out.push(block(ru.start * nv + rv.start, (lo(2), hi(2))));
                     return (out, bands);
                 }
                 // Clip to each column's strip, then take each cell's heights from where the
@@ -216,7 +310,7 @@ fn blocked_ranges(mesh: &Mesh, g: &AxisGrid) -> Vec<Vec<(u32, (f64, f64))>> {
                     strip.band_heights(g.origin[1], g.cell, rv.clone(), &mut bands);
                     for (v, &(t0, t1)) in rv.clone().zip(&bands) {
                         if t0 <= t1 {
-                            out.push(((u * nv + v) as u32, (t0, t1)));
+                            out.push(block(u * nv + v, (t0, t1)));
                         }
                     }
                 }
@@ -700,7 +794,47 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::occluder::WorldBox;
     use crate::occluder::rectangle::{bit_rows, largest};
+
+    #[test]
+    fn a_closed_surfaces_crossings_decide_its_gaps_as_point_queries_do() {
+        // A box with a hollow, and a turned box through the shell and the hollow: winding
+        // numbers 0, 1 and 2, where parity and winding disagree.
+        let mut mesh = Mesh::default();
+        let mut add = |lo: [f64; 3], hi: [f64; 3], turn: DQuat, inward: bool| {
+            for tri in (WorldBox { lo, hi }).triangles() {
+                let tri = tri.map(|p| (turn * p).as_vec3());
+                let base = mesh.positions.len() as u32;
+                mesh.positions
+                    .extend(if inward { [tri[0], tri[2], tri[1]] } else { tri });
+                mesh.triangles.push([base, base + 1, base + 2]);
+            }
+        };
+        add([0.0; 3], [4.0; 3], DQuat::IDENTITY, false);
+        add([1.0; 3], [3.0; 3], DQuat::IDENTITY, true);
+        add(
+            [1.5, 0.5, -0.5],
+            [2.5, 1.5, 3.5],
+            DQuat::from_euler(glam::EulerRot::XYZ, 0.3, 0.5, 0.2),
+            false,
+        );
+        let winding = |p: DVec3| -> (i32, u32) {
+            let hits = (0..mesh.triangles.len()).filter_map(|t| {
+                column_hit(&mesh.corners(t).map(|c| c.as_dvec3().to_array()), [p.x, p.y]).filter(|hit| hit.z > p.z)
+            });
+            hits.fold((0, 0), |(sum, count), hit| (sum + i32::from(hit.sign), count + 1))
+        };
+        for parity in [false, true] {
+            let inside = |p: DVec3| match winding(p) {
+                (_, count) if parity => count % 2 == 1,
+                (sum, _) => sum >= 1,
+            };
+            let by_points = find(&mesh, 40, Solid::Points(&inside));
+            assert!(by_points.len() > 12, "{} quads", by_points.len());
+            assert_eq!(find(&mesh, 40, Solid::Closed { parity }), by_points, "parity {parity}");
+        }
+    }
 
     #[test]
     fn band_heights_are_those_of_the_strip_clipped_to_each_band() {

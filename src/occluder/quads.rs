@@ -671,6 +671,31 @@ impl Planes {
         plane.dirty_from = usize::MAX;
         plane.bound = plane.best.map_or(0, |r| r.cells());
         plane.state = Bound::Exact;
+        self.bound_subsets(i);
+    }
+
+    /// Bounds the planes next to plane `i` in height, while their open cells all lie among
+    /// `i`'s, by `i`'s best: none of their rectangles is larger.
+    fn bound_subsets(&mut self, i: usize) {
+        let (k, best) = (self.rank[i], self.list[i].bound);
+        let (mut below, mut above) = ((0..k).rev(), k + 1..self.order.len());
+        for side in [&mut below as &mut dyn Iterator<Item = usize>, &mut above] {
+            for r in side {
+                let j = self.order[r];
+                let inside = self.list[j]
+                    .open
+                    .iter()
+                    .zip(&self.list[i].open)
+                    .all(|(a, b)| a & !b == 0);
+                if !inside {
+                    break;
+                }
+                let plane = &mut self.list[j];
+                if plane.state != Bound::Exact {
+                    plane.bound = plane.bound.min(best);
+                }
+            }
+        }
     }
 
     /// A plane next to plane `i` in height, or next to one of those, with the same open cells
@@ -875,6 +900,84 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_lazy_greedy_takes_what_searching_every_plane_each_time_takes() {
+        let mut rng = fastrand::Rng::with_seed(17);
+        let mut taken = 0;
+        for _ in 0..20 {
+            let dims = [rng.usize(10..30), rng.usize(20..90)];
+            let (nu, nv) = (dims[0], dims[1]);
+            let g = AxisGrid {
+                turn: DQuat::IDENTITY,
+                axis: 2,
+                origin: [0.0, 0.0],
+                cell: 1.0,
+                dims,
+            };
+            // Smooth walls with a round hole and a few single ones, and now and then a second
+            // gap above.
+            let mut gaps = Gaps {
+                starts: vec![0],
+                list: Vec::new(),
+            };
+            let (a, b) = (rng.f64() * 6.0 + 2.0, rng.f64() * 6.0 + 2.0);
+            let hole = [rng.f64() * nu as f64, rng.f64() * nv as f64, rng.f64() * 5.0];
+            for c in 0..nu * nv {
+                let (u, v) = ((c / nv) as f64, (c % nv) as f64);
+                let lo = 2.0 + (u / a).sin() + (v / b).cos();
+                let in_hole = (u - hole[0]).hypot(v - hole[1]) < hole[2];
+                if !in_hole && rng.f64() < 0.99 {
+                    gaps.list.push(Gap {
+                        lo,
+                        hi: lo + 3.0 + (v / a).sin() * 2.0,
+                    });
+                }
+                if rng.f64() < 0.3 {
+                    gaps.list.push(Gap { lo: 9.0, hi: 9.5 });
+                }
+                gaps.starts.push(gaps.list.len());
+            }
+            let planes: Vec<f64> = (0..40).map(|_| rng.f64() * 10.0).collect();
+            let margin = 1e-6;
+            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, &planes, margin)
+                .iter()
+                .flat_map(|q| [[q.corners[0][0], q.corners[0][1]], [q.corners[2][0], q.corners[2][1]]])
+                .collect();
+            let mut open: Vec<Vec<bool>> = planes
+                .iter()
+                .map(|&t| {
+                    (0..nu * nv)
+                        .map(|c| gaps.of(c).iter().any(|gap| gap.holds(t, margin)))
+                        .collect()
+                })
+                .collect();
+            let mut eager = Vec::new();
+            while eager.len() < 2 * MAX_PER_AXIS {
+                let found = (0..planes.len()).filter_map(|i| {
+                    let rect = largest(&open[i], nu, nv, MIN_SIDE).filter(|r| r.cells() >= MIN_CELLS)?;
+                    Some((rect, planes[i]))
+                });
+                let Some((rect, t)) = found.max_by(|a, b| a.0.cells().cmp(&b.0.cells()).then(b.1.total_cmp(&a.1)))
+                else {
+                    break;
+                };
+                eager.extend([[rect.u[0], rect.v[0]], [rect.u[1], rect.v[1]]].map(|c| c.map(|k| k as f64)));
+                for (u, v) in rect.iter() {
+                    let c = u * nv + v;
+                    let gap = gaps.of(c).iter().find(|gap| gap.holds(t, margin)).expect("open");
+                    for (open, &t) in open.iter_mut().zip(&planes) {
+                        if gap.holds(t, margin) {
+                            open[c] = false;
+                        }
+                    }
+                }
+            }
+            assert_eq!(lazy, eager);
+            taken += eager.len() / 2;
+        }
+        assert!(taken > 200, "{taken} quads");
     }
 
     #[test]

@@ -193,8 +193,14 @@ impl Sweep {
                         *live &= word;
                     }
                 }
+                // A rectangle ending on the row is no wider than its columns high enough and
+                // no taller than the highest: when that cannot beat the best, the row is done.
+                let width: u32 = self.live.iter().map(|w| w.count_ones()).sum();
+                let height = row.iter().copied().max().unwrap_or(0);
                 let mut best = best;
-                pop_row(u, row, &self.live, self.min_side, &mut self.stack, &mut best);
+                if best.is_none_or(|b| width as usize * height as usize > b.cells()) {
+                    pop_row(u, row, &self.live, self.min_side, &mut self.stack, &mut best);
+                }
                 best
             };
         }

@@ -6,10 +6,10 @@
 //! axis. Every triangle that meets the prism, clipped to it, blocks the range of heights it spans
 //! there. Between two blocked ranges the prism's cross-section meets no surface, so it is inside
 //! or outside as a whole, and one point query decides which: on a closed surface, the crossings
-//! of the cell's centre line above the gap, since they count the same in every direction. A plane is open in a cell when it
-//! lies in such an inside gap; a quad is a rectangle of cells in which one plane is open. The
-//! test holds for the cell's whole footprint, not only at a sample, so the quad is inside
-//! everywhere.
+//! of the cell's centre line above the gap, since they count the same in every direction. A
+//! plane is open in a cell when it lies in such an inside gap; a quad is a rectangle of cells in
+//! which one plane is open. The test holds for the cell's whole footprint, not only at a
+//! sample, so the quad is inside everywhere.
 //!
 //! Besides the world axes, frames turned by 45° about each axis give diagonal quads, which cover
 //! what oblique views see of rounded shapes.

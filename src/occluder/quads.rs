@@ -409,7 +409,7 @@ impl Polygon {
         let corners = &self.corners[..self.len];
         for (i, &a) in corners.iter().enumerate() {
             let b = corners[(i + 1) % self.len];
-            let k = ((a[1] - first) / cell).floor().max(0.0) as usize;
+            let k = ((a[1] - first) / cell).max(0.0) as usize;
             for band in k.saturating_sub(1)..k + 2 {
                 if line(band) <= a[1] && a[1] <= line(band + 1) {
                     add(band, a[2]);
@@ -420,7 +420,7 @@ impl Polygon {
                 continue;
             }
             let slope = (hi[2] - lo[2]) / (hi[1] - lo[1]);
-            let first_line = ((lo[1] - first) / cell).floor().max(0.0) as usize;
+            let first_line = ((lo[1] - first) / cell).max(0.0) as usize;
             for k in first_line..=count {
                 let v = line(k);
                 if v > hi[1] {

@@ -633,13 +633,6 @@ impl Planes {
     /// again only from the first row where a cell closed, until the open cells fit in half
     /// that box, when the search starts anew over their box.
     fn search(&mut self, i: usize) {
-        if let Some(twin) = self.twin(i) {
-            let best = self.list[twin].best;
-            let plane = &mut self.list[i];
-            (plane.best, plane.bound, plane.state, plane.sweep) =
-                (best, best.map_or(0, |r| r.cells()), Bound::Exact, None);
-            return;
-        }
         let row_words = self.row_words;
         let plane = &mut self.list[i];
         match open_bounds(&plane.open, row_words) {
@@ -675,41 +668,28 @@ impl Planes {
     }
 
     /// Bounds the planes next to plane `i` in height, while their open cells all lie among
-    /// `i`'s, by `i`'s best: none of their rectangles is larger.
+    /// `i`'s, by `i`'s best: none of their rectangles is larger. Those with the same open cells
+    /// take that best, as a search of theirs would find it; planes a few cells apart in a thick
+    /// part of the solid often agree.
     fn bound_subsets(&mut self, i: usize) {
-        let (k, best) = (self.rank[i], self.list[i].bound);
+        let (k, best, rect) = (self.rank[i], self.list[i].bound, self.list[i].best);
         let (mut below, mut above) = ((0..k).rev(), k + 1..self.order.len());
         for side in [&mut below as &mut dyn Iterator<Item = usize>, &mut above] {
             for r in side {
                 let j = self.order[r];
-                let inside = self.list[j]
-                    .open
-                    .iter()
-                    .zip(&self.list[i].open)
-                    .all(|(a, b)| a & !b == 0);
-                if !inside {
+                let (open, around) = (&self.list[j].open, &self.list[i].open);
+                if !open.iter().zip(around).all(|(a, b)| a & !b == 0) {
                     break;
                 }
+                let same = open == around;
                 let plane = &mut self.list[j];
-                if plane.state != Bound::Exact {
+                if same {
+                    (plane.best, plane.bound, plane.state, plane.sweep) = (rect, best, Bound::Exact, None);
+                } else if plane.state != Bound::Exact {
                     plane.bound = plane.bound.min(best);
                 }
             }
         }
-    }
-
-    /// A plane next to plane `i` in height, or next to one of those, with the same open cells
-    /// and an exact best: the best a search of `i` would find. Planes a few cells apart in a
-    /// thick part of the solid often agree.
-    fn twin(&self, i: usize) -> Option<usize> {
-        let (open, k) = (&self.list[i].open, self.rank[i]);
-        let twin_among = |side: &mut dyn Iterator<Item = &usize>| {
-            side.map(|&j| &self.list[j])
-                .take_while(|plane| plane.open == *open)
-                .position(|plane| plane.state == Bound::Exact)
-        };
-        let below = twin_among(&mut self.order[..k].iter().rev()).map(|n| self.order[k - 1 - n]);
-        below.or_else(|| twin_among(&mut self.order[k + 1..].iter()).map(|n| self.order[k + 1 + n]))
     }
 }
 

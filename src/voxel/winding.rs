@@ -17,6 +17,7 @@ use super::{Grid, columns::ColumnCrossings, columns::column_hit};
 use crate::mesh::{BoundaryEdge, Mesh};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
+use std::collections::HashMap;
 use std::f64::consts::PI;
 
 /// Voxels between exact evaluations of the curtain term along a column.
@@ -35,6 +36,7 @@ const MARGIN: f64 = 0.15;
 pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -> Vec<bool> {
     let mut inside = vec![false; grid.len()];
     let (ny, nz) = (grid.dims[1], grid.dims[2]);
+    let curtain = Curtain::new(mesh, boundary);
     inside.par_chunks_mut(nz).enumerate().for_each(|(c, column)| {
         let counts: Vec<f64> = crossings.above(grid, c).map(|(sum, _)| f64::from(sum)).collect();
         if boundary.is_empty() {
@@ -48,7 +50,7 @@ pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEd
         if samples.last() != Some(&(nz - 1)) {
             samples.push(nz - 1);
         }
-        let terms = boundary_terms(mesh, boundary, &samples.iter().map(centre).collect::<Vec<_>>());
+        let terms = curtain.terms(&samples.iter().map(centre).collect::<Vec<_>>());
         for (&z, &b) in samples.iter().zip(&terms) {
             column[z] = counts[z] + b >= 0.5;
         }
@@ -65,7 +67,7 @@ pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEd
                 }
             }
         }
-        let terms = boundary_terms(mesh, boundary, &exact.iter().map(centre).collect::<Vec<_>>());
+        let terms = curtain.terms(&exact.iter().map(centre).collect::<Vec<_>>());
         for (&z, &b) in exact.iter().zip(&terms) {
             column[z] = counts[z] + b >= 0.5;
         }
@@ -82,46 +84,75 @@ pub fn solid_angle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
 
 /// A complex number whose argument is half of [`solid_angle`]: (denominator, numerator).
 fn half_solid_angle(a: DVec3, b: DVec3, c: DVec3) -> DVec2 {
-    let (la, lb, lc) = (a.length(), b.length(), c.length());
+    half_solid_angle_of([a, b, c], [a.length(), b.length(), c.length()])
+}
+
+/// [`half_solid_angle`] of the corners with their lengths given.
+#[inline(always)]
+fn half_solid_angle_of([a, b, c]: [DVec3; 3], [la, lb, lc]: [f64; 3]) -> DVec2 {
     let numerator = a.dot(b.cross(c));
     let denominator = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
     DVec2::new(denominator, numerator)
 }
 
-/// The curtain's share of w(p), from the open boundary alone.
-pub fn boundary_term(mesh: &Mesh, boundary: &[BoundaryEdge], p: DVec3) -> f64 {
-    boundary_terms(mesh, boundary, &[p])[0]
+/// The open boundary as the curtain term reads it: each edge's ends index the boundary's own
+/// vertices, so that a point's distance to a vertex two edges share is taken once.
+pub struct Curtain {
+    vertices: Vec<DVec3>,
+    /// (start, end, weight): an edge taken `weight` times, backwards where negative.
+    edges: Vec<(usize, usize, i32)>,
 }
 
-/// [`boundary_term`] at each of `points`.
-///
-/// The sum of the edges' half solid angles is the argument of the product of their complex
-/// numbers, plus the whole turns it made: one atan2 a point instead of one an edge. Edge by
-/// edge, the points' products grow side by side, none waiting on the last multiplication.
-pub fn boundary_terms(mesh: &Mesh, boundary: &[BoundaryEdge], points: &[DVec3]) -> Vec<f64> {
-    if points.is_empty() {
-        return Vec::new();
+impl Curtain {
+    pub fn new(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Curtain {
+        let mut slot = HashMap::new();
+        let mut vertices = Vec::new();
+        let mut index = |v: u32| {
+            *slot.entry(v).or_insert_with(|| {
+                vertices.push(mesh.positions[v as usize].as_dvec3());
+                vertices.len() - 1
+            })
+        };
+        let edges = boundary.iter().map(|e| (index(e.a), index(e.b), e.weight)).collect();
+        Curtain { vertices, edges }
     }
-    let mut angles = vec![Angle::ZERO; points.len()];
-    for e in boundary {
-        let (a, b) = (
-            mesh.positions[e.a as usize].as_dvec3(),
-            mesh.positions[e.b as usize].as_dvec3(),
-        );
-        for _ in 0..e.weight.unsigned_abs() {
-            for (angle, &p) in angles.iter_mut().zip(points) {
-                let half = half_solid_angle(a - p, b - p, DVec3::NEG_Z);
-                // An edge taken backwards turns the other way.
-                angle.add(if e.weight < 0 {
-                    DVec2::new(half.x, -half.y)
-                } else {
-                    half
-                });
+
+    /// The curtain's share of w(p), from the open boundary alone.
+    pub fn term(&self, p: DVec3) -> f64 {
+        self.terms(&[p])[0]
+    }
+
+    /// [`Curtain::term`] at each of `points`.
+    ///
+    /// The sum of the edges' half solid angles is the argument of the product of their complex
+    /// numbers, plus the whole turns it made: one atan2 a point instead of one an edge. Edge by
+    /// edge, the points' products grow side by side, none waiting on the last multiplication.
+    pub fn terms(&self, points: &[DVec3]) -> Vec<f64> {
+        let n = points.len();
+        if n == 0 {
+            return Vec::new();
+        }
+        let mut distances = vec![0.0; self.vertices.len() * n];
+        for (&v, row) in self.vertices.iter().zip(distances.chunks_exact_mut(n)) {
+            for (distance, &p) in row.iter_mut().zip(points) {
+                *distance = (v - p).length();
             }
         }
+        let mut angles = vec![Angle::ZERO; n];
+        for &(a, b, weight) in &self.edges {
+            let (va, vb) = (self.vertices[a], self.vertices[b]);
+            let (la, lb) = (&distances[a * n..][..n], &distances[b * n..][..n]);
+            for _ in 0..weight.unsigned_abs() {
+                for (k, (angle, &p)) in angles.iter_mut().zip(points).enumerate() {
+                    let half = half_solid_angle_of([va - p, vb - p, DVec3::NEG_Z], [la[k], lb[k], 1.0]);
+                    // An edge taken backwards turns the other way.
+                    angle.add(if weight < 0 { DVec2::new(half.x, -half.y) } else { half });
+                }
+            }
+        }
+        // Ω = 2·(half angles), w = Ω / 4π.
+        angles.iter().map(|angle| angle.radians() / PI * 0.5).collect()
     }
-    // Ω = 2·(half angles), w = Ω / 4π.
-    angles.iter().map(|angle| angle.radians() / PI * 0.5).collect()
 }
 
 /// A sum of arguments of complex numbers, kept as their product and the whole turns it made.
@@ -180,7 +211,7 @@ pub fn direct(mesh: &Mesh, p: DVec3) -> f64 {
 /// the triangles above and below it.
 pub struct WindingField<'a> {
     mesh: &'a Mesh,
-    boundary: &'a [BoundaryEdge],
+    curtain: Curtain,
     lo: DVec2,
     cell: f64,
     dims: [usize; 2],
@@ -233,7 +264,7 @@ impl<'a> WindingField<'a> {
         }
         WindingField {
             mesh,
-            boundary,
+            curtain: Curtain::new(mesh, boundary),
             lo,
             cell,
             dims,
@@ -260,7 +291,7 @@ impl<'a> WindingField<'a> {
     }
 
     pub fn winding(&self, p: DVec3) -> f64 {
-        f64::from(self.crossings_above(p).0) + boundary_term(self.mesh, self.boundary, p)
+        f64::from(self.crossings_above(p).0) + self.curtain.term(p)
     }
 
     /// The crossings of the upward ray from `p`: (signed sum, count). On a closed surface the
@@ -302,6 +333,7 @@ mod tests {
                 weight: [1, -1, 2, -3][k % 4],
             })
             .collect();
+        let curtain = Curtain::new(&mesh, &boundary);
         let mut turns = 0;
         for k in 0..500 {
             // Points among the edges, and on some of their ends.
@@ -318,7 +350,7 @@ mod tests {
                 })
                 .sum::<f64>()
                 / (4.0 * PI);
-            let term = boundary_term(&mesh, &boundary, p);
+            let term = curtain.term(p);
             assert!(
                 (term - one_by_one).abs() < 1e-9,
                 "point {k}: {term} against {one_by_one}"

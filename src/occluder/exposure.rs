@@ -328,13 +328,11 @@ impl OpenViews {
         let (mut hidden, mut left) = (vec![true; nu * nv], nu * nv);
         for view in 0..self.views.len() {
             for triangle in panel.triangles() {
-                if !self.hidden_by_tiles(view, &triangle) {
-                    self.visit_seen(view, &triangle, |p| {
-                        for cell in cells_at(p) {
-                            left -= usize::from(std::mem::replace(&mut hidden[cell], false));
-                        }
-                    });
-                }
+                self.visit_seen(view, &triangle, |p| {
+                    for cell in cells_at(p) {
+                        left -= usize::from(std::mem::replace(&mut hidden[cell], false));
+                    }
+                });
             }
             if left < 4 {
                 return None;
@@ -353,32 +351,9 @@ impl OpenViews {
     }
 
     fn hides_triangle(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
-        if self.hidden_by_tiles(v, triangle) {
-            return true;
-        }
         let mut hidden = true;
         self.visit_seen(v, triangle, |_| hidden = false);
         hidden
-    }
-
-    /// Quick answer for an orthographic view: the triangle's nearest corner lies behind the
-    /// farthest depth of every tile under its screen bounds. Cameras in openings get no quick
-    /// answer.
-    fn hidden_by_tiles(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
-        if self.horizon(v).is_some() {
-            return false;
-        }
-        let view = &self.views[v];
-        let corners = triangle.map(|p| view.project(p));
-        let lo = corners[0].min(corners[1]).min(corners[2]);
-        let hi = corners[0].max(corners[1]).max(corners[2]);
-        let tiles = PIXELS / TILE;
-        let farthest = tile_range(lo.y, hi.y)
-            .flat_map(|ty| tile_range(lo.x, hi.x).map(move |tx| ty * tiles + tx))
-            .map(|t| self.tiles[v * tiles * tiles + t])
-            .fold(0f32, f32::max);
-        let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
-        on_screen && lo.z >= f64::from(farthest) - view.depth_tolerance()
     }
 
     /// Calls `seen` with the point of `triangle` at each pixel where view `v` sees it in front
@@ -401,16 +376,31 @@ impl OpenViews {
             rasterize(view, triangle, visit);
             return;
         }
-        // An orthographic view draws only the runs of tiles where the triangle may lie in front
-        // of the tile's farthest depth: elsewhere no pixel of it shows.
-        let nearest = NearestDepth::new(triangle.map(|p| view.project(p)), self.pixel * PIXELS as f64);
+        let corners = triangle.map(|p| view.project(p));
+        let (lo, hi) = (
+            corners[0].min(corners[1]).min(corners[2]),
+            corners[0].max(corners[1]).max(corners[2]),
+        );
+        let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
         let tiles = PIXELS / TILE;
         let far = &self.tiles[v * tiles * tiles..(v + 1) * tiles * tiles];
+        // The quick answer: a triangle on screen whose nearest corner lies behind the farthest
+        // depth of every tile under its screen bounds shows nowhere.
+        let farthest = rows
+            .clone()
+            .flat_map(|ty| columns.clone().map(move |tx| far[ty * tiles + tx]))
+            .fold(0f32, f32::max);
+        let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
+        if on_screen && lo.z >= f64::from(farthest) - tolerance {
+            return;
+        }
+        // Else only the runs of tiles where the triangle may lie in front of the tile's
+        // farthest depth are drawn: elsewhere no pixel of it shows.
+        let nearest = NearestDepth::new(corners, self.pixel * PIXELS as f64);
         let hidden = |tx: usize, ty: usize| {
             let centres = |t: usize| [(t * TILE) as f64 + 0.5, ((t + 1) * TILE) as f64 - 0.5];
             nearest.over(centres(tx), centres(ty)) >= f64::from(far[ty * tiles + tx]) - tolerance
         };
-        let (columns, rows) = nearest.tiles();
         for ty in rows {
             let mut tx = *columns.start();
             while tx <= *columns.end() {
@@ -465,13 +455,6 @@ impl NearestDepth {
             c[0].z + low(sx, xs, c[0].x) + low(sy, ys, c[0].y)
         });
         on_plane.max(self.nearest_corner) - self.margin
-    }
-
-    /// The tiles, by column and row, under the triangle's screen bounds.
-    fn tiles(&self) -> (std::ops::RangeInclusive<usize>, std::ops::RangeInclusive<usize>) {
-        let c = self.corners;
-        let (lo, hi) = (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]));
-        (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y))
     }
 }
 

@@ -67,11 +67,21 @@ fn normal(mesh: &Mesh, t: usize) -> Option<DVec3> {
 /// Connected regions of triangles that share edges and lie in one plane, each listed from its
 /// first triangle; degenerate triangles join none.
 fn flat_regions(mesh: &Mesh, tolerance: f64) -> Vec<Vec<usize>> {
-    let mut by_edge: HashMap<(u32, u32), Vec<u32>> = HashMap::with_capacity(mesh.triangles.len() * 3 / 2);
+    // Per vertex, the triangles that use it, in order, as one flat list: the triangles across an
+    // edge are those of its first end that also use its second.
+    let mut starts = vec![0usize; mesh.positions.len() + 1];
+    for &v in mesh.triangles.iter().flatten() {
+        starts[v as usize + 1] += 1;
+    }
+    for v in 0..mesh.positions.len() {
+        starts[v + 1] += starts[v];
+    }
+    let mut next_slot = starts.clone();
+    let mut users = vec![0u32; starts[mesh.positions.len()]];
     for (t, tri) in mesh.triangles.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (tri[k], tri[(k + 1) % 3]);
-            by_edge.entry((a.min(b), a.max(b))).or_default().push(t as u32);
+        for &v in tri {
+            users[next_slot[v as usize]] = t as u32;
+            next_slot[v as usize] += 1;
         }
     }
     let normals: Vec<Option<DVec3>> = (0..mesh.triangles.len()).map(|t| normal(mesh, t)).collect();
@@ -96,10 +106,10 @@ fn flat_regions(mesh: &Mesh, tolerance: f64) -> Vec<Vec<usize>> {
             let tri = mesh.triangles[region[next]];
             next += 1;
             for k in 0..3 {
-                let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                for &u in &by_edge[&(a.min(b), a.max(b))] {
+                let (a, b) = (tri[k] as usize, tri[(k + 1) % 3]);
+                for &u in &users[starts[a]..starts[a + 1]] {
                     let u = u as usize;
-                    if !region_of[u] && in_plane(u) {
+                    if !region_of[u] && mesh.triangles[u].contains(&b) && in_plane(u) {
                         region_of[u] = true;
                         region.push(u);
                     }

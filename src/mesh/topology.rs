@@ -3,7 +3,6 @@
 
 use super::Mesh;
 use serde::Serialize;
-use std::collections::HashMap;
 
 /// An edge of the surface's boundary chain: `weight` copies of the directed edge `a → b`.
 /// Edges of a consistently oriented closed surface cancel and never appear.
@@ -42,9 +41,9 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
         volume[component[tri[0] as usize] as usize] += a.dot(b.cross(c));
     }
     let edges = edge_uses(mesh);
-    for (&(a, _), uses) in &edges {
+    for ((a, _), uses) in &edges {
         if uses.net != 0 {
-            open[component[a as usize] as usize] = true;
+            open[component[*a as usize] as usize] = true;
         }
     }
     let inverted: Vec<bool> = (0..count).map(|c| !open[c] && volume[c] < 0.0).collect();
@@ -64,7 +63,8 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
             .collect(),
         ..Default::default()
     };
-    for (&(a, b), uses) in &edges {
+    // In the keys' order, so that floating-point sums over the boundary are reproducible.
+    for &((a, b), ref uses) in &edges {
         let net = if inverted[component[a as usize] as usize] {
             -uses.net
         } else {
@@ -76,8 +76,6 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
             topology.boundary.push(BoundaryEdge { a, b, weight: net });
         }
     }
-    // HashMap order is random; a fixed order keeps floating-point sums reproducible.
-    topology.boundary.sort_by_key(|e| (e.a, e.b));
     topology
 }
 
@@ -87,18 +85,32 @@ struct EdgeUses {
     total: u32,
 }
 
-fn edge_uses(mesh: &Mesh) -> HashMap<(u32, u32), EdgeUses> {
-    let mut edges: HashMap<(u32, u32), EdgeUses> = HashMap::with_capacity(mesh.triangles.len() * 3 / 2);
-    for tri in &mesh.triangles {
-        for k in 0..3 {
-            let (a, b) = (tri[k], tri[(k + 1) % 3]);
-            let (key, sign) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
-            let e = edges.entry(key).or_insert(EdgeUses { net: 0, total: 0 });
-            e.net += sign;
-            e.total += 1;
-        }
-    }
-    edges
+/// Each edge's uses, by its key, the keys in order.
+fn edge_uses(mesh: &Mesh) -> Vec<((u32, u32), EdgeUses)> {
+    let mut directed: Vec<((u32, u32), i32)> = mesh
+        .triangles
+        .iter()
+        .flat_map(|tri| {
+            (0..3).map(|k| {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                if a < b { ((a, b), 1) } else { ((b, a), -1) }
+            })
+        })
+        .collect();
+    directed.sort_unstable();
+    directed
+        .chunk_by(|x, y| x.0 == y.0)
+        .map(|uses| {
+            let net = uses.iter().map(|&(_, sign)| sign).sum();
+            (
+                uses[0].0,
+                EdgeUses {
+                    net,
+                    total: uses.len() as u32,
+                },
+            )
+        })
+        .collect()
 }
 
 /// Connected components over shared vertices, numbered densely from 0, one entry per vertex.

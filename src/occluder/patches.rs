@@ -33,25 +33,32 @@ pub fn find(mesh: &Mesh, candidates: &[bool], cell: f64, min_area: f64) -> Vec<P
     if size <= 0.0 || cell <= 0.0 {
         return Vec::new();
     }
-    let mut groups: HashMap<[i64; 4], Vec<usize>> = HashMap::new();
-    for t in (0..mesh.triangles.len()).filter(|&t| candidates[t]) {
-        let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
-        let Some(n) = (b - a).cross(c - a).try_normalize() else {
-            continue;
-        };
-        // Both sides of a plane are one group.
-        let (n, _) = facing_up(n);
-        let q = |x: f64, step: f64| (x / step).round() as i64;
-        let key = [
-            q(n.x, NORMAL_TOLERANCE),
-            q(n.y, NORMAL_TOLERANCE),
-            q(n.z, NORMAL_TOLERANCE),
-            q(n.dot(a), OFFSET_TOLERANCE * size),
-        ];
-        groups.entry(key).or_default().push(t);
-    }
-    let mut groups: Vec<Vec<usize>> = groups.into_values().collect();
-    groups.sort();
+    // Each triangle with its plane's key, sorted: a plane's triangles follow each other, in order.
+    let mut keyed: Vec<([i64; 4], usize)> = (0..mesh.triangles.len())
+        .into_par_iter()
+        .filter(|&t| candidates[t])
+        .filter_map(|t| {
+            let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+            let n = (b - a).cross(c - a).try_normalize()?;
+            // Both sides of a plane are one group.
+            let (n, _) = facing_up(n);
+            let q = |x: f64, step: f64| (x / step).round() as i64;
+            let key = [
+                q(n.x, NORMAL_TOLERANCE),
+                q(n.y, NORMAL_TOLERANCE),
+                q(n.z, NORMAL_TOLERANCE),
+                q(n.dot(a), OFFSET_TOLERANCE * size),
+            ];
+            Some((key, t))
+        })
+        .collect();
+    keyed.par_sort_unstable();
+    let mut groups: Vec<Vec<usize>> = keyed
+        .chunk_by(|a, b| a.0 == b.0)
+        .map(|plane| plane.iter().map(|&(_, t)| t).collect())
+        .collect();
+    // By first triangle (no two groups share one): the planes in the mesh's order.
+    groups.sort_unstable();
     let mut patches: Vec<Panel> = groups
         .par_iter()
         .filter(|g| g.iter().map(|&t| area(mesh, t)).sum::<f64>() >= min_area)

@@ -16,6 +16,7 @@
 
 use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape};
+use crate::geom::buckets::Buckets;
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
 use glam::{DQuat, DVec3};
@@ -140,20 +141,13 @@ fn inside_gaps(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, margin: f64, sol
     let nv = g.dims[1];
     let cells = g.dims[0] * nv;
     let blocked = blocked_ranges(mesh, corners, g);
-    // Counting sort by cell.
-    let mut starts = vec![0usize; cells + 1];
-    for block in blocked.iter().flatten() {
-        starts[block.cell as usize + 1] += 1;
-    }
-    for c in 0..cells {
-        starts[c + 1] += starts[c];
-    }
-    let mut ranges = vec![Block::default(); starts[cells]];
-    let mut next = starts.clone();
-    for &block in blocked.iter().flatten() {
-        ranges[next[block.cell as usize]] = block;
-        next[block.cell as usize] += 1;
-    }
+    let Buckets {
+        starts,
+        items: mut ranges,
+    } = Buckets::new(
+        cells,
+        blocked.iter().flatten().map(|&block| (block.cell as usize, block)),
+    );
     // A row of cells at a time: few allocations, and enough rows to share out.
     let mut rows: Vec<&mut [Block]> = Vec::with_capacity(g.dims[0]);
     let mut rest = ranges.as_mut_slice();

@@ -4,6 +4,7 @@
 //! exactly what that part of the surface hides. Pieces are drawn double-sided, but for a closed
 //! part chosen whole, which faces out with the solid.
 
+use crate::geom::buckets::Buckets;
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
@@ -67,23 +68,15 @@ fn normal(mesh: &Mesh, t: usize) -> Option<DVec3> {
 /// Connected regions of triangles that share edges and lie in one plane, each listed from its
 /// first triangle; degenerate triangles join none.
 fn flat_regions(mesh: &Mesh, tolerance: f64) -> Vec<Vec<usize>> {
-    // Per vertex, the triangles that use it, in order, as one flat list: the triangles across an
-    // edge are those of its first end that also use its second.
-    let mut starts = vec![0usize; mesh.positions.len() + 1];
-    for &v in mesh.triangles.iter().flatten() {
-        starts[v as usize + 1] += 1;
-    }
-    for v in 0..mesh.positions.len() {
-        starts[v + 1] += starts[v];
-    }
-    let mut next_slot = starts.clone();
-    let mut users = vec![0u32; starts[mesh.positions.len()]];
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        for &v in tri {
-            users[next_slot[v as usize]] = t as u32;
-            next_slot[v as usize] += 1;
-        }
-    }
+    // Per vertex, the triangles that use it, in order: the triangles across an edge are those of
+    // its first end that also use its second.
+    let users = Buckets::new(
+        mesh.positions.len(),
+        mesh.triangles
+            .iter()
+            .enumerate()
+            .flat_map(|(t, tri)| tri.iter().map(move |&v| (v as usize, t as u32))),
+    );
     let normals: Vec<Option<DVec3>> = (0..mesh.triangles.len()).map(|t| normal(mesh, t)).collect();
     let mut region_of = vec![false; mesh.triangles.len()];
     let mut regions = Vec::new();
@@ -107,7 +100,7 @@ fn flat_regions(mesh: &Mesh, tolerance: f64) -> Vec<Vec<usize>> {
             next += 1;
             for k in 0..3 {
                 let (a, b) = (tri[k] as usize, tri[(k + 1) % 3]);
-                for &u in &users[starts[a]..starts[a + 1]] {
+                for &u in users.get(a) {
                     let u = u as usize;
                     if !region_of[u] && mesh.triangles[u].contains(&b) && in_plane(u) {
                         region_of[u] = true;

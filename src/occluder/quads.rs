@@ -278,8 +278,8 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
     (0..mesh.triangles.len())
         .into_par_iter()
         .fold(
-            || (Vec::new(), Vec::new()),
-            |(mut out, mut bands), t| {
+            || (Vec::new(), Vec::new(), Vec::new()),
+            |(mut out, mut bands, mut lines), t| {
                 let tri = mesh.triangles[t].map(|i| corners[i as usize]);
                 let block = |c: usize, heights| Block {
                     cell: c as u32,
@@ -292,26 +292,29 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
                 if ru.len() == 1 && rv.len() == 1 {
                     // Wholly inside one cell: no clipping.
                     out.push(block(ru.start * nv + rv.start, (lo(2), hi(2))));
-                    return (out, bands);
+                    return (out, bands, lines);
                 }
                 // Clip to each column's strip, then take each cell's heights from where the
-                // strip's edges cross the lines between cells.
+                // strip's edges cross the lines between cells, computed as the quads' corners
+                // are.
+                lines.clear();
+                lines.extend((rv.start..=rv.end).map(|k| g.origin[1] + k as f64 * g.cell));
                 for u in ru {
                     let u0 = g.origin[0] + u as f64 * g.cell;
                     let Some(strip) = Polygon::triangle(&tri).clip(0, [u0, u0 + g.cell]) else {
                         continue;
                     };
-                    strip.band_heights(g.origin[1], g.cell, rv.clone(), &mut bands);
+                    strip.band_heights(&lines, g.cell, &mut bands);
                     for (v, &(t0, t1)) in rv.clone().zip(&bands) {
                         if t0 <= t1 {
                             out.push(block(u * nv + v, (t0, t1)));
                         }
                     }
                 }
-                (out, bands)
+                (out, bands, lines)
             },
         )
-        .map(|(out, _)| out)
+        .map(|(out, _, _)| out)
         .collect()
 }
 
@@ -385,16 +388,14 @@ impl Polygon {
     }
 
     /// The lowest and highest t of the part in each band along v, closed, band k over
-    /// [`origin` + k·`cell`, `origin` + (k+1)·`cell`] for k in `bands`, into `heights` (lowest
-    /// above highest where the part misses the band). t is linear over the polygon, so its
-    /// extremes over a band lie at corners in the band or where edges cross its two lines.
-    fn band_heights(&self, origin: f64, cell: f64, bands: std::ops::Range<usize>, heights: &mut Vec<(f64, f64)>) {
-        let count = bands.len();
+    /// [`lines[k]`, `lines[k + 1]`], lines `cell` apart, into `heights` (lowest above highest
+    /// where the part misses the band). t is linear over the polygon, so its extremes over a
+    /// band lie at corners in the band or where edges cross its two lines.
+    fn band_heights(&self, lines: &[f64], cell: f64, heights: &mut Vec<(f64, f64)>) {
+        let count = lines.len() - 1;
         heights.clear();
         heights.resize(count, (f64::INFINITY, f64::NEG_INFINITY));
-        // The cells' own bounds, computed as the quads' corners are.
-        let line = |k: usize| origin + (bands.start + k) as f64 * cell;
-        let first = line(0);
+        let first = lines[0];
         let mut add = |band: usize, t: f64| {
             if let Some(h) = heights.get_mut(band) {
                 *h = (h.0.min(t), h.1.max(t));
@@ -404,8 +405,8 @@ impl Polygon {
         for (i, &a) in corners.iter().enumerate() {
             let b = corners[(i + 1) % self.len];
             let k = ((a[1] - first) / cell).max(0.0) as usize;
-            for band in k.saturating_sub(1)..k + 2 {
-                if line(band) <= a[1] && a[1] <= line(band + 1) {
+            for band in k.saturating_sub(1)..(k + 2).min(count) {
+                if lines[band] <= a[1] && a[1] <= lines[band + 1] {
                     add(band, a[2]);
                 }
             }
@@ -415,8 +416,7 @@ impl Polygon {
             }
             let slope = (hi[2] - lo[2]) / (hi[1] - lo[1]);
             let first_line = ((lo[1] - first) / cell).max(0.0) as usize;
-            for k in first_line..=count {
-                let v = line(k);
+            for (k, &v) in lines.iter().enumerate().skip(first_line) {
                 if v > hi[1] {
                     break;
                 }
@@ -858,7 +858,8 @@ mod tests {
             };
             let bands = g.range(1, lo, hi);
             let polygon = Polygon::triangle(&tri);
-            polygon.band_heights(origin, cell, bands.clone(), &mut heights);
+            let lines: Vec<f64> = (bands.start..=bands.end).map(|k| origin + k as f64 * cell).collect();
+            polygon.band_heights(&lines, cell, &mut heights);
             for (k, &(t0, t1)) in bands.zip(&heights) {
                 let band = [origin + k as f64 * cell, origin + (k + 1) as f64 * cell];
                 let clipped = polygon.clip(1, band).map(|part| {

@@ -580,32 +580,77 @@ impl Planes {
         first..end.max(first)
     }
 
-    /// Closes cell `c` on every plane its gap (by index in [`Gaps::list`]) holds: a quad now
-    /// fills that gap there. A plane whose best rectangle held the cell has only a bound left.
-    fn close(&mut self, c: usize, gap: usize) {
-        let (word, bit) = self.bit(c);
-        let (u, v) = (c / self.nv, c % self.nv);
-        for k in self.held[gap].clone() {
-            let plane = &mut self.list[self.order[k]];
-            if plane.open[word] & bit == 0 {
+    /// Closes each cell of `rect` on every plane its gap holds, the gaps given by index in
+    /// [`Gaps::list`] in the order of [`CellRect::iter`]: a quad now fills that gap there. A
+    /// plane whose best rectangle held a closed cell has only a bound left. Row by row, the
+    /// cells' runs of planes become masks of cells, one per run of planes with the same cells.
+    fn close(&mut self, rect: &CellRect, gaps: &[usize]) {
+        let width = rect.v[1] - rect.v[0];
+        let words = rect.v[0] / 64..(rect.v[1] - 1) / 64 + 1;
+        let mut mask = vec![0u64; words.len()];
+        // (position in `order`, column, whether the cell's run starts there), by position.
+        let mut edges = Vec::with_capacity(2 * width);
+        for (u, row_gaps) in (rect.u[0]..rect.u[1]).zip(gaps.chunks(width)) {
+            edges.clear();
+            for (v, &gap) in (rect.v[0]..rect.v[1]).zip(row_gaps) {
+                let held = &self.held[gap];
+                if !held.is_empty() {
+                    edges.extend([(held.start, v, true), (held.end, v, false)]);
+                }
+            }
+            edges.sort_unstable_by_key(|&(k, _, _)| k);
+            mask.fill(0);
+            for (at, pair) in edges.iter().enumerate() {
+                let (k, v, starts) = *pair;
+                let bit = 1u64 << (v % 64);
+                if starts {
+                    mask[v / 64 - words.start] |= bit;
+                } else {
+                    mask[v / 64 - words.start] &= !bit;
+                }
+                let next = edges.get(at + 1).map_or(k, |e| e.0);
+                for k in k..next {
+                    self.close_row(self.order[k], u, words.start, &mask);
+                }
+            }
+        }
+    }
+
+    /// Closes plane `i`'s cells of row `u` in `mask`, whose words start at word `first`.
+    fn close_row(&mut self, i: usize, u: usize, first: usize, mask: &[u64]) {
+        let plane = &mut self.list[i];
+        let row = &mut plane.open[u * self.row_words + first..][..mask.len()];
+        let mut closed = 0;
+        let mut in_best = false;
+        let best_columns = plane.best.filter(|r| (r.u[0]..r.u[1]).contains(&u)).map(|r| r.v);
+        for (w, (word, &mask)) in row.iter_mut().zip(mask).enumerate() {
+            let shut = *word & mask;
+            if shut == 0 {
                 continue;
             }
-            plane.open[word] &= !bit;
-            plane.open_cells -= 1;
-            if !plane.touched {
-                plane.touched = true;
-                self.touched.push(self.order[k]);
+            *word &= !shut;
+            closed += shut.count_ones() as usize;
+            if let Some([v0, v1]) = best_columns {
+                let columns = columns_before(64 * (first + w), v1) & !columns_before(64 * (first + w), v0);
+                in_best |= shut & columns != 0;
             }
-            if let Some(([u0, _], _)) = plane.sweep {
-                plane.dirty_from = plane.dirty_from.min(u - u0);
-            }
-            let holds = |r: &CellRect| (r.u[0]..r.u[1]).contains(&u) && (r.v[0]..r.v[1]).contains(&v);
-            if plane.best.as_ref().is_some_and(holds) {
-                plane.state = Bound::Stale;
-            }
-            if plane.state != Bound::Exact {
-                plane.bound = plane.bound.min(plane.open_cells);
-            }
+        }
+        if closed == 0 {
+            return;
+        }
+        plane.open_cells -= closed;
+        if !plane.touched {
+            plane.touched = true;
+            self.touched.push(i);
+        }
+        if let Some(([u0, _], _)) = plane.sweep {
+            plane.dirty_from = plane.dirty_from.min(u - u0);
+        }
+        if in_best {
+            plane.state = Bound::Stale;
+        }
+        if plane.state != Bound::Exact {
+            plane.bound = plane.bound.min(plane.open_cells);
         }
     }
 
@@ -690,12 +735,7 @@ impl Planes {
 /// With no cell of `rect` open, an open rectangle lies wholly above, below, left or right of
 /// it: the most open cells of those four parts bound it. None when a cell of `rect` is open.
 fn open_around(open: &[u64], row_words: usize, rect: &CellRect) -> Option<usize> {
-    // The bits of word w for columns before `v`.
-    let before = |w: usize, v: usize| match v.saturating_sub(64 * w) {
-        0 => 0,
-        k if k >= 64 => u64::MAX,
-        k => (1u64 << k) - 1,
-    };
+    let before = |w: usize, v: usize| columns_before(64 * w, v);
     let [mut above, mut below, mut left, mut right] = [0usize; 4];
     for (u, row) in open.chunks(row_words).enumerate() {
         for (w, &word) in row.iter().enumerate().filter(|(_, word)| **word != 0) {
@@ -712,6 +752,15 @@ fn open_around(open: &[u64], row_words: usize, rect: &CellRect) -> Option<usize>
         }
     }
     Some(above.max(below).max(left).max(right))
+}
+
+/// The bits, of a word of a row whose first column is `first`, of the columns before `v`.
+fn columns_before(first: usize, v: usize) -> u64 {
+    match v.saturating_sub(first) {
+        0 => 0,
+        k if k >= 64 => u64::MAX,
+        k => (1u64 << k) - 1,
+    }
 }
 
 /// The first and last rows and columns with an open cell, if any.
@@ -744,6 +793,7 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
     let nv = g.dims[1];
     let mut planes = Planes::new(gaps, planes, margin, g.dims);
     let mut quads = Vec::new();
+    let mut filled = Vec::new();
     while quads.len() < MAX_PER_AXIS {
         let candidates = &planes.list;
         let Some(top) = (0..candidates.len())
@@ -765,6 +815,7 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
         );
         // Centre the quad in the heights that every cell of the rectangle leaves open.
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        filled.clear();
         for (u, v) in rect.iter() {
             let c = u * nv + v;
             let k = gaps.starts[c]
@@ -775,8 +826,9 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
                     .expect("the rectangle's cells hold the plane");
             lo = lo.max(gaps.list[k].lo);
             hi = hi.min(gaps.list[k].hi);
-            planes.close(c, k);
+            filled.push(k);
         }
+        planes.close(&rect, &filled);
         planes.bound_around(&rect);
         let t = 0.5 * (lo + hi);
         let u = rect.u.map(|k| g.origin[0] + k as f64 * g.cell);

@@ -33,6 +33,10 @@ pub fn bit_rows(mask: &[bool], nu: usize, nv: usize) -> Vec<u64> {
     bits
 }
 
+/// A column's count of open cells ending on a row: two bytes, so that a row's heights grow
+/// eight at a time in one 128-bit register. [`Sweep::new`] takes at most `Height::MAX` rows.
+type Height = u16;
+
 /// The histogram method's pass over row `u`: the rectangles that end on it, each as tall as a
 /// column's height and as wide as the columns around it at least as high, replace `best` when
 /// larger (so the first found of the largest size stays). `live` has a bit for each column at
@@ -40,7 +44,7 @@ pub fn bit_rows(mask: &[bool], nu: usize, nv: usize) -> Vec<u64> {
 /// that holds them is tall enough, so runs of them are skipped a word at a time.
 fn pop_row(
     u: usize,
-    heights: &[u32],
+    heights: &[Height],
     live: &[u64],
     min_side: usize,
     stack: &mut Vec<usize>,
@@ -97,13 +101,13 @@ fn next_bit(bits: &[u64], v: usize) -> Option<usize> {
 }
 
 /// Each byte's bits as lanes of all ones or zeros, so that eight heights grow at once.
-const BYTE_LANES: [[u32; 8]; 256] = {
+const BYTE_LANES: [[Height; 8]; 256] = {
     let mut lanes = [[0; 8]; 256];
     let mut byte = 0;
     while byte < 256 {
         let mut bit = 0;
         while bit < 8 {
-            lanes[byte][bit] = if byte >> bit & 1 == 1 { u32::MAX } else { 0 };
+            lanes[byte][bit] = if byte >> bit & 1 == 1 { Height::MAX } else { 0 };
             bit += 1;
         }
         byte += 1;
@@ -113,19 +117,31 @@ const BYTE_LANES: [[u32; 8]; 256] = {
 
 /// A row's column heights from the row above's (none on the first row): one more where the
 /// row's bit is set, else 0.
-fn grow_heights(row: &mut [u32], above: Option<&[u32]>, bits: &[u64]) {
-    const NONE_ABOVE: [u32; 64] = [0; 64];
-    for (k, (heights, word)) in row.chunks_mut(64).zip(bits).enumerate() {
+fn grow_heights(row: &mut [Height], above: Option<&[Height]>, bits: &[u64]) {
+    const NONE_ABOVE: [Height; 64] = [0; 64];
+    for (k, (heights, &word)) in row.chunks_mut(64).zip(bits).enumerate() {
         let above = above.map_or(&NONE_ABOVE[..heights.len()], |a| &a[64 * k..64 * k + heights.len()]);
-        if *word == 0 {
+        if word == 0 {
             heights.fill(0);
-            continue;
+        } else if let (Ok(heights), Ok(above)) = (
+            <&mut [Height; 64]>::try_from(&mut *heights),
+            <&[Height; 64]>::try_from(above),
+        ) {
+            // A whole word's columns: fixed lengths, so that the lanes are vector operations.
+            grow_word(heights, above, word);
+        } else {
+            grow_word(heights, above, word);
         }
-        for (b, (heights, above)) in heights.chunks_mut(8).zip(above.chunks(8)).enumerate() {
-            let lanes = &BYTE_LANES[(word >> (8 * b)) as usize & 0xff];
-            for ((h, a), lane) in heights.iter_mut().zip(above).zip(lanes) {
-                *h = (a + 1) & lane;
-            }
+    }
+}
+
+/// [`grow_heights`] for the columns of one word of bits.
+#[inline(always)]
+fn grow_word(heights: &mut [Height], above: &[Height], word: u64) {
+    for (b, (heights, above)) in heights.chunks_mut(8).zip(above.chunks(8)).enumerate() {
+        let lanes = &BYTE_LANES[(word >> (8 * b)) as usize & 0xff];
+        for ((h, a), lane) in heights.iter_mut().zip(above).zip(lanes) {
+            *h = (a + 1) & lane;
         }
     }
 }
@@ -138,7 +154,7 @@ pub struct Sweep {
     words: usize,
     min_side: usize,
     /// Each row's column heights, `nv` a row.
-    heights: Vec<u32>,
+    heights: Vec<Height>,
     /// The best rectangle ending on or before each row.
     best: Vec<Option<CellRect>>,
     live: Vec<u64>,
@@ -147,6 +163,8 @@ pub struct Sweep {
 
 impl Sweep {
     pub fn new(nu: usize, nv: usize, min_side: usize) -> Sweep {
+        // Every caller's grid is capped far below: cook.quad_grid at 4096 cells a side.
+        assert!(nu <= usize::from(Height::MAX), "a sweep of {nu} rows");
         let words = nv.div_ceil(64);
         Sweep {
             nv,

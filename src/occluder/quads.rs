@@ -368,13 +368,18 @@ impl Polygon {
         (out.len > 0).then_some(out)
     }
 
+    /// Each edge's two corners, in order around, the last edge back to the first corner.
+    #[inline(always)]
+    fn edges(&self) -> impl Iterator<Item = ([f64; 3], [f64; 3])> + '_ {
+        let corners = &self.corners[..self.len];
+        (0..self.len).map(|i| (corners[i], corners[if i + 1 == self.len { 0 } else { i + 1 }]))
+    }
+
     /// Calls `corner` with each corner of [`Polygon::clip_side`]'s part, in order.
     #[inline(always)]
     fn clipped_corners(&self, k: usize, bound: f64, above: bool, mut corner: impl FnMut([f64; 3])) {
         let keeps = |p: &[f64; 3]| if above { p[k] >= bound } else { p[k] <= bound };
-        let corners = &self.corners[..self.len];
-        for i in 0..self.len {
-            let (a, b) = (corners[i], corners[(i + 1) % self.len]);
+        for (a, b) in self.edges() {
             if keeps(&a) {
                 corner(a);
             }
@@ -401,9 +406,7 @@ impl Polygon {
                 *h = (h.0.min(t), h.1.max(t));
             }
         };
-        let corners = &self.corners[..self.len];
-        for (i, &a) in corners.iter().enumerate() {
-            let b = corners[(i + 1) % self.len];
+        for (a, b) in self.edges() {
             let k = ((a[1] - first) / cell).max(0.0) as usize;
             for band in k.saturating_sub(1)..(k + 2).min(count) {
                 if lines[band] <= a[1] && a[1] <= lines[band + 1] {

@@ -116,32 +116,27 @@ const BYTE_LANES: [[Height; 8]; 256] = {
 };
 
 /// A row's column heights from the row above's (none on the first row): one more where the
-/// row's bit is set, else 0.
+/// row's bit is set, else 0. Eight columns at a time in fixed-length arrays, so that the
+/// lanes are one vector operation.
 fn grow_heights(row: &mut [Height], above: Option<&[Height]>, bits: &[u64]) {
     const NONE_ABOVE: [Height; 64] = [0; 64];
     for (k, (heights, &word)) in row.chunks_mut(64).zip(bits).enumerate() {
         let above = above.map_or(&NONE_ABOVE[..heights.len()], |a| &a[64 * k..64 * k + heights.len()]);
         if word == 0 {
             heights.fill(0);
-        } else if let (Ok(heights), Ok(above)) = (
-            <&mut [Height; 64]>::try_from(&mut *heights),
-            <&[Height; 64]>::try_from(above),
-        ) {
-            // A whole word's columns: fixed lengths, so that the lanes are vector operations.
-            grow_word(heights, above, word);
-        } else {
-            grow_word(heights, above, word);
+            continue;
         }
-    }
-}
-
-/// [`grow_heights`] for the columns of one word of bits.
-#[inline(always)]
-fn grow_word(heights: &mut [Height], above: &[Height], word: u64) {
-    for (b, (heights, above)) in heights.chunks_mut(8).zip(above.chunks(8)).enumerate() {
-        let lanes = &BYTE_LANES[(word >> (8 * b)) as usize & 0xff];
-        for ((h, a), lane) in heights.iter_mut().zip(above).zip(lanes) {
-            *h = (a + 1) & lane;
+        let (eights, rest) = heights.as_chunks_mut::<8>();
+        let (above_eights, above_rest) = above.as_chunks::<8>();
+        for (b, (heights, above)) in eights.iter_mut().zip(above_eights).enumerate() {
+            let lanes = &BYTE_LANES[(word >> (8 * b)) as usize & 0xff];
+            for j in 0..8 {
+                heights[j] = (above[j] + 1) & lanes[j];
+            }
+        }
+        let first = 8 * eights.len();
+        for (j, (height, above)) in rest.iter_mut().zip(above_rest).enumerate() {
+            *height = if word >> (first + j) & 1 == 1 { above + 1 } else { 0 };
         }
     }
 }

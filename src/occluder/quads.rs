@@ -357,6 +357,11 @@ impl Polygon {
     /// `above`, else at most.
     #[inline(always)]
     fn clip_side(&self, k: usize, bound: f64, above: bool) -> Option<Polygon> {
+        // Wholly on the kept side, as the first and last of a triangle's strips often are: the
+        // corners as the clip would give them.
+        if self.corners[..self.len].iter().all(|p| keeps(p, k, bound, above)) {
+            return Some(*self);
+        }
         let mut out = Polygon {
             corners: [[0.0; 3]; 8],
             len: 0,
@@ -378,7 +383,7 @@ impl Polygon {
     /// Calls `corner` with each corner of [`Polygon::clip_side`]'s part, in order.
     #[inline(always)]
     fn clipped_corners(&self, k: usize, bound: f64, above: bool, mut corner: impl FnMut([f64; 3])) {
-        let keeps = |p: &[f64; 3]| if above { p[k] >= bound } else { p[k] <= bound };
+        let keeps = |p: &[f64; 3]| keeps(p, k, bound, above);
         for (a, b) in self.edges() {
             if keeps(&a) {
                 corner(a);
@@ -431,6 +436,13 @@ impl Polygon {
             }
         }
     }
+}
+
+/// Whether a clip keeps corner `p`: where its coordinate `k` is at least `bound` when `above`,
+/// else at most.
+#[inline(always)]
+fn keeps(p: &[f64; 3], k: usize, bound: f64, above: bool) -> bool {
+    if above { p[k] >= bound } else { p[k] <= bound }
 }
 
 /// Planes worth trying: evenly spaced along the axis, plus the middles of the thin gaps

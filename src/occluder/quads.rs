@@ -603,27 +603,27 @@ impl Planes {
         let width = rect.v[1] - rect.v[0];
         let words = rect.v[0] / 64..(rect.v[1] - 1) / 64 + 1;
         let mut mask = vec![0u64; words.len()];
-        // (position in `order`, column, whether the cell's run starts there), by position.
-        let mut edges = Vec::with_capacity(2 * width);
+        // Where each cell's run of planes starts and ends: (position in `order`, column, whether
+        // it starts there), by position.
+        let mut run_ends = Vec::with_capacity(2 * width);
         for (u, row_gaps) in (rect.u[0]..rect.u[1]).zip(gaps.chunks(width)) {
-            edges.clear();
+            run_ends.clear();
             for (v, &gap) in (rect.v[0]..rect.v[1]).zip(row_gaps) {
                 let held = &self.held[gap];
                 if !held.is_empty() {
-                    edges.extend([(held.start, v, true), (held.end, v, false)]);
+                    run_ends.extend([(held.start, v, true), (held.end, v, false)]);
                 }
             }
-            edges.sort_unstable_by_key(|&(k, _, _)| k);
+            run_ends.sort_unstable_by_key(|&(k, _, _)| k);
             mask.fill(0);
-            for (at, pair) in edges.iter().enumerate() {
-                let (k, v, starts) = *pair;
+            for (at, &(k, v, starts)) in run_ends.iter().enumerate() {
                 let bit = 1u64 << (v % 64);
                 if starts {
                     mask[v / 64 - words.start] |= bit;
                 } else {
                     mask[v / 64 - words.start] &= !bit;
                 }
-                let next = edges.get(at + 1).map_or(k, |e| e.0);
+                let next = run_ends.get(at + 1).map_or(k, |e| e.0);
                 for k in k..next {
                     self.close_row(self.order[k], u, words.start, &mask);
                 }

@@ -76,6 +76,12 @@ impl AxisGrid {
         self.turn.inverse() * p
     }
 
+    /// The line before cell `index` along grid axis k: one expression for the quads' corners
+    /// and the blocked heights' clip lines, so that both see the same values.
+    fn line(&self, k: usize, index: usize) -> f64 {
+        self.origin[k] + index as f64 * self.cell
+    }
+
     /// Cells whose closed footprint meets [lo, hi] along grid axis k.
     fn range(&self, k: usize, lo: f64, hi: f64) -> std::ops::Range<usize> {
         let a = ((lo - self.origin[k]) / self.cell - 1.0).ceil().max(0.0) as usize;
@@ -295,12 +301,11 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
                     return (out, bands, lines);
                 }
                 // Clip to each column's strip, then take each cell's heights from where the
-                // strip's edges cross the lines between cells, computed as the quads' corners
-                // are.
+                // strip's edges cross the lines between cells.
                 lines.clear();
-                lines.extend((rv.start..=rv.end).map(|k| g.origin[1] + k as f64 * g.cell));
+                lines.extend((rv.start..=rv.end).map(|k| g.line(1, k)));
                 for u in ru {
-                    let u0 = g.origin[0] + u as f64 * g.cell;
+                    let u0 = g.line(0, u);
                     let Some(strip) = Polygon::triangle(&tri).clip(0, [u0, u0 + g.cell]) else {
                         continue;
                     };
@@ -846,8 +851,8 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
         planes.close(&rect, &filled);
         planes.bound_around(&rect);
         let t = 0.5 * (lo + hi);
-        let u = rect.u.map(|k| g.origin[0] + k as f64 * g.cell);
-        let v = rect.v.map(|k| g.origin[1] + k as f64 * g.cell);
+        let u = rect.u.map(|k| g.line(0, k));
+        let v = rect.v.map(|k| g.line(1, k));
         let corners = [(u[0], v[0]), (u[1], v[0]), (u[1], v[1]), (u[0], v[1])];
         quads.push(Panel {
             shape: Shape::Quads,
@@ -925,7 +930,7 @@ mod tests {
             };
             let bands = g.range(1, lo, hi);
             let polygon = Polygon::triangle(&tri);
-            let lines: Vec<f64> = (bands.start..=bands.end).map(|k| origin + k as f64 * cell).collect();
+            let lines: Vec<f64> = (bands.start..=bands.end).map(|k| g.line(1, k)).collect();
             polygon.band_heights(&lines, cell, &mut heights);
             for (k, &(t0, t1)) in bands.zip(&heights) {
                 let band = [origin + k as f64 * cell, origin + (k + 1) as f64 * cell];

@@ -494,9 +494,9 @@ struct PlaneCells {
     /// Whether the rectangle being taken has closed a cell of it.
     touched: bool,
     /// The search, over the bounding box of the cells open when it first ran (from the corner
-    /// given), and the first of its rows where a cell has closed since it last ran.
+    /// given), and the first to the last of its rows where a cell has closed since it last ran.
     sweep: Option<([usize; 2], Sweep)>,
-    dirty_from: usize,
+    dirty: std::ops::Range<usize>,
 }
 
 /// The candidate planes of one axis grid, and which of them each gap holds.
@@ -541,7 +541,7 @@ impl Planes {
                 open_cells: 0,
                 touched: false,
                 sweep: None,
-                dirty_from: 0,
+                dirty: 0..usize::MAX,
             })
             .collect();
         let mut all = Planes {
@@ -664,7 +664,7 @@ impl Planes {
             self.touched.push(i);
         }
         if let Some(([u0, _], _)) = plane.sweep {
-            plane.dirty_from = plane.dirty_from.min(u - u0);
+            plane.dirty = plane.dirty.start.min(u - u0)..plane.dirty.end.max(u - u0 + 1);
         }
         if in_best {
             plane.state = Bound::Stale;
@@ -689,7 +689,7 @@ impl Planes {
     }
 
     /// Searches plane `i`'s open cells for its best rectangle: over their bounding box, then
-    /// again only from the first row where a cell closed, until the open cells fit in half
+    /// again over the rows where cells closed and those whose heights that changes, until the open cells fit in half
     /// that box, when the search starts anew over their box.
     fn search(&mut self, i: usize) {
         let row_words = self.row_words;
@@ -706,21 +706,21 @@ impl Planes {
                     .is_none_or(|(_, sweep)| 2 * rows * columns <= sweep.cells())
                 {
                     plane.sweep = Some((lo, Sweep::new(rows, columns, MIN_SIDE)));
-                    plane.dirty_from = 0;
+                    plane.dirty = 0..usize::MAX;
                 }
             }
         }
         plane.best = plane.sweep.as_mut().and_then(|([u0, v0], sweep)| {
             let first = *u0 * row_words + *v0 / 64;
             sweep
-                .run(plane.dirty_from, &plane.open[first..], row_words)
+                .run(plane.dirty.clone(), &plane.open[first..], row_words)
                 .filter(|r| r.cells() >= MIN_CELLS)
                 .map(|r| CellRect {
                     u: r.u.map(|u| u + *u0),
                     v: r.v.map(|v| v + *v0),
                 })
         });
-        plane.dirty_from = usize::MAX;
+        plane.dirty = usize::MAX..0;
         plane.bound = plane.best.map_or(0, |r| r.cells());
         plane.state = Bound::Exact;
         self.bound_subsets(i);

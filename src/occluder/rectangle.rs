@@ -19,7 +19,7 @@ impl CellRect {
 
 /// The largest rectangle of true cells at least `min_side` cells wide each way, if any.
 pub fn largest(mask: &[bool], nu: usize, nv: usize, min_side: usize) -> Option<CellRect> {
-    Sweep::new(nu, nv, min_side).run(0, &bit_rows(mask, nu, nv), nv.div_ceil(64))
+    Sweep::new(nu, nv, min_side).run(0..nu, &bit_rows(mask, nu, nv), nv.div_ceil(64))
 }
 
 /// A `nu` × `nv` mask as [`Sweep::run`] reads it: each row's cells as bits, in whole words.
@@ -141,9 +141,18 @@ fn grow_heights(row: &mut [Height], above: Option<&[Height]>, bits: &[u64]) {
     }
 }
 
-/// [`largest`] kept row by row, for a mask whose cells only ever close: after cells close
-/// from row `from` on, [`Sweep::run`] redoes only those rows, and finds what a new search
-/// would, the same rectangle included.
+/// What the search of one row found: the first of the largest rectangles ending on it, or that
+/// none ending on it has more than so many cells. The first holds whatever the rows before
+/// found; the second only while they found at least as many.
+#[derive(Clone, Copy)]
+enum RowBest {
+    Found(CellRect),
+    AtMost(usize),
+}
+
+/// [`largest`] kept row by row, for a mask whose cells only ever close: after cells close in
+/// some rows, [`Sweep::run`] redoes those and the rows below whose column heights they change,
+/// and finds what a new search would, the same rectangle included.
 pub struct Sweep {
     nv: usize,
     words: usize,
@@ -152,8 +161,12 @@ pub struct Sweep {
     heights: Vec<Height>,
     /// The best rectangle ending on or before each row.
     best: Vec<Option<CellRect>>,
+    /// What each row's own search found.
+    rows: Vec<RowBest>,
     live: Vec<u64>,
     stack: Vec<usize>,
+    /// A row's heights before they grow again.
+    before: Vec<Height>,
 }
 
 impl Sweep {
@@ -167,8 +180,10 @@ impl Sweep {
             min_side,
             heights: vec![0; nu * nv],
             best: vec![None; nu],
+            rows: vec![RowBest::AtMost(0); nu],
             live: vec![0; words],
             stack: Vec::with_capacity(nv + 1),
+            before: vec![0; nv],
         }
     }
 
@@ -177,47 +192,82 @@ impl Sweep {
         self.heights.len()
     }
 
-    /// The largest rectangle of the open cells, sweeping again from row `from`: rows before it
-    /// must be as the last run saw them. Cell (u, v) is open when bit v % 64 of
-    /// `open[u * stride + v / 64]` is set.
-    pub fn run(&mut self, from: usize, open: &[u64], stride: usize) -> Option<CellRect> {
+    /// The largest rectangle of the open cells. `changed` holds the rows where cells closed
+    /// since the last run; the first run, or one after any other change, passes every row.
+    /// Cell (u, v) is open when bit v % 64 of `open[u * stride + v / 64]` is set.
+    pub fn run(&mut self, changed: std::ops::Range<usize>, open: &[u64], stride: usize) -> Option<CellRect> {
         let (nv, nu, words) = (self.nv, self.best.len(), self.words);
         let row_bits = |u: usize| &open[u * stride..u * stride + words];
         // The row before may have been skipped for what the changed row held: redo it too.
-        let from = from.min(nu).saturating_sub(1);
+        let from = changed.start.min(nu).saturating_sub(1);
+        // Once a row past the changed ones has the heights it had, so do all after it, and
+        // each keeps what its search found.
+        let mut settled = false;
         for u in from..nu {
-            let (done, rest) = self.heights.split_at_mut(u * nv);
-            let row = &mut rest[..nv];
-            // The row above; none on the first.
-            let above = &done[done.len().saturating_sub(nv)..];
-            let bits = row_bits(u);
-            grow_heights(row, (u > 0).then_some(above), bits);
+            if !settled {
+                let (done, rest) = self.heights.split_at_mut(u * nv);
+                let row = &mut rest[..nv];
+                let past = u >= changed.end;
+                if past {
+                    self.before.copy_from_slice(row);
+                }
+                // The row above; none on the first.
+                let above = &done[done.len().saturating_sub(nv)..];
+                grow_heights(row, (u > 0).then_some(above), row_bits(u));
+                settled = past && *row == *self.before;
+            }
             let best = if u > 0 { self.best[u - 1] } else { None };
-            // Each rectangle of a row whose open cells the next row holds too grows into a
-            // larger one ending there: the row need not be searched.
-            let grows_on = u + 1 < nu && bits.iter().zip(row_bits(u + 1)).all(|(a, b)| a & !b == 0);
-            self.best[u] = if grows_on || u + 1 < self.min_side {
-                best
-            } else {
-                // Columns at least `min_side` high: open on the last `min_side` rows.
-                self.live.copy_from_slice(bits);
-                for k in 1..self.min_side {
-                    for (live, word) in self.live.iter_mut().zip(row_bits(u - k)) {
-                        *live &= word;
-                    }
-                }
-                // A rectangle ending on the row is no wider than its columns high enough and
-                // no taller than the highest: when that cannot beat the best, the row is done.
-                let width: u32 = self.live.iter().map(|w| w.count_ones()).sum();
-                let height = row.iter().copied().max().unwrap_or(0);
-                let mut best = best;
-                if best.is_none_or(|b| width as usize * height as usize > b.cells()) {
-                    pop_row(u, row, &self.live, self.min_side, &mut self.stack, &mut best);
-                }
-                best
+            let threshold = best.map_or(0, |b| b.cells());
+            let known = settled
+                && match self.rows[u] {
+                    RowBest::Found(_) => true,
+                    RowBest::AtMost(cells) => cells <= threshold,
+                };
+            if !known {
+                self.rows[u] = self.search_row(u, open, stride, best);
+            }
+            self.best[u] = match self.rows[u] {
+                RowBest::Found(rect) if rect.cells() > threshold => Some(rect),
+                _ => best,
             };
         }
         self.best.last().copied().flatten()
+    }
+
+    /// Searches the rectangles ending on row `u`, whose heights have grown, for one larger than
+    /// `best`, the best of the rows before.
+    fn search_row(&mut self, u: usize, open: &[u64], stride: usize, best: Option<CellRect>) -> RowBest {
+        let (nv, nu, words) = (self.nv, self.best.len(), self.words);
+        let row_bits = |u: usize| &open[u * stride..u * stride + words];
+        let bits = row_bits(u);
+        // Each rectangle of a row whose open cells the next row holds too grows into a larger
+        // one ending there: the row need not be searched.
+        let grows_on = u + 1 < nu && bits.iter().zip(row_bits(u + 1)).all(|(a, b)| a & !b == 0);
+        if grows_on || u + 1 < self.min_side {
+            return RowBest::AtMost(0);
+        }
+        // Columns at least `min_side` high: open on the last `min_side` rows.
+        self.live.copy_from_slice(bits);
+        for k in 1..self.min_side {
+            for (live, word) in self.live.iter_mut().zip(row_bits(u - k)) {
+                *live &= word;
+            }
+        }
+        // A rectangle ending on the row is no wider than its columns high enough and no taller
+        // than the highest: when that cannot beat the best, the row is done.
+        let row = &self.heights[u * nv..(u + 1) * nv];
+        let width: u32 = self.live.iter().map(|w| w.count_ones()).sum();
+        let most = width as usize * row.iter().copied().max().unwrap_or(0) as usize;
+        let threshold = best.map_or(0, |b| b.cells());
+        if most <= threshold {
+            return RowBest::AtMost(most);
+        }
+        let mut found = best;
+        pop_row(u, row, &self.live, self.min_side, &mut self.stack, &mut found);
+        match found {
+            Some(rect) if found != best => RowBest::Found(rect),
+            _ => RowBest::AtMost(threshold),
+        }
     }
 }
 
@@ -271,7 +321,7 @@ mod tests {
             let (nu, nv) = (rng.usize(1..12), rng.usize(1..12));
             let mut mask: Vec<bool> = (0..nu * nv).map(|_| rng.f64() < 0.8).collect();
             let mut sweep = Sweep::new(nu, nv, 2);
-            let mut found = sweep.run(0, &bit_rows(&mask, nu, nv), nv.div_ceil(64));
+            let mut found = sweep.run(0..nu, &bit_rows(&mask, nu, nv), nv.div_ceil(64));
             for _ in 0..5 {
                 assert_eq!(found, largest(&mask, nu, nv, 2));
                 let (u, v) = (rng.usize(0..nu), rng.usize(0..nv));
@@ -279,7 +329,7 @@ mod tests {
                 for k in u..u + rows {
                     mask[k * nv + v] = false;
                 }
-                found = sweep.run(u, &bit_rows(&mask, nu, nv), nv.div_ceil(64));
+                found = sweep.run(u..u + rows, &bit_rows(&mask, nu, nv), nv.div_ceil(64));
             }
         }
     }

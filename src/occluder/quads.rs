@@ -82,6 +82,14 @@ impl AxisGrid {
         self.origin[k] + index as f64 * self.cell
     }
 
+    /// The lines along grid axis k (as indices for [`AxisGrid::line`]) within [lo, hi], give
+    /// or take rounding. Without rounding calls: the coordinates are never below the origin.
+    fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::RangeInclusive<usize> {
+        let (a, b) = ((lo - self.origin[k]) / self.cell, (hi - self.origin[k]) / self.cell);
+        let first = a as usize + usize::from((a as usize as f64) < a);
+        first..=(b as usize).min(self.dims[k])
+    }
+
     /// Cells whose closed footprint meets [lo, hi] along grid axis k.
     fn range(&self, k: usize, lo: f64, hi: f64) -> std::ops::Range<usize> {
         let a = ((lo - self.origin[k]) / self.cell - 1.0).ceil().max(0.0) as usize;
@@ -284,8 +292,8 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
     (0..mesh.triangles.len())
         .into_par_iter()
         .fold(
-            || (Vec::new(), Vec::new(), Vec::new()),
-            |(mut out, mut bands, mut lines), t| {
+            || (Vec::new(), CellHeights::default()),
+            |(mut out, mut cells), t| {
                 let tri = mesh.triangles[t].map(|i| corners[i as usize]);
                 let block = |c: usize, heights| Block {
                     cell: c as u32,
@@ -296,31 +304,147 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
                 let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
                 let (ru, rv) = (g.range(0, lo(0), hi(0)), g.range(1, lo(1), hi(1)));
                 if ru.len() == 1 && rv.len() == 1 {
-                    // Wholly inside one cell: no clipping.
+                    // Wholly inside one cell.
                     out.push(block(ru.start * nv + rv.start, (lo(2), hi(2))));
-                    return (out, bands, lines);
+                    return (out, cells);
                 }
-                // Clip to each column's strip, then take each cell's heights from where the
-                // strip's edges cross the lines between cells.
-                lines.clear();
-                lines.extend((rv.start..=rv.end).map(|k| g.line(1, k)));
-                for u in ru {
-                    let u0 = g.line(0, u);
-                    let Some(strip) = Polygon::triangle(&tri).clip(0, [u0, u0 + g.cell]) else {
-                        continue;
-                    };
-                    strip.band_heights(&lines, g.cell, &mut bands);
-                    for (v, &(t0, t1)) in rv.clone().zip(&bands) {
+                cells.of_triangle(&tri, g, [ru.start, rv.start], [ru.len(), rv.len()]);
+                for (u, row) in ru.zip(cells.heights.chunks(rv.len() + 2).skip(1)) {
+                    for (v, &(t0, t1)) in rv.clone().zip(&row[1..]) {
                         if t0 <= t1 {
                             out.push(block(u * nv + v, (t0, t1)));
                         }
                     }
                 }
-                (out, bands, lines)
+                (out, cells)
             },
         )
-        .map(|(out, _, _)| out)
+        .map(|(out, _)| out)
         .collect()
+}
+
+/// The lowest and highest height of a triangle (in grid coordinates) over each cell of a block
+/// of cells, with what finding them needs, kept from triangle to triangle.
+#[derive(Default)]
+struct CellHeights {
+    /// Over the block and a border of one cell around it, the second axis fastest: lowest above
+    /// highest where the triangle misses the cell. The border takes what falls just outside.
+    heights: Vec<(f64, f64)>,
+    /// The block's first cell and its cells along each axis.
+    first: [usize; 2],
+    cells: [usize; 2],
+    /// Where the triangle crosses each line between cells along the first axis, from the
+    /// block's first on: its points of lowest and highest second coordinate, as (v, t).
+    sections: Vec<Option<[(f64, f64); 2]>>,
+}
+
+/// The cells along one axis whose closed footprints hold a point: the first, as its place in
+/// the bordered block, and whether the next holds it too (on the line between them).
+type Along = (usize, bool);
+
+impl CellHeights {
+    /// The heights of `tri` over the cells from `first`, `cells` along each axis: those whose
+    /// closed footprints its bounds meet. Over a cell, the height is linear on the part of the
+    /// triangle in it, so its extremes lie at that part's corners: the triangle's own corners,
+    /// where its edges cross the lines between cells, and where two such lines cross inside
+    /// it. Each of those points counts in every cell whose closed footprint holds it.
+    fn of_triangle(&mut self, tri: &[[f64; 3]; 3], g: &AxisGrid, first: [usize; 2], cells: [usize; 2]) {
+        self.heights.clear();
+        self.heights
+            .resize((cells[0] + 2) * (cells[1] + 2), (f64::INFINITY, f64::NEG_INFINITY));
+        self.sections.clear();
+        self.sections.resize(cells[0] + 1, None);
+        (self.first, self.cells) = (first, cells);
+        for p in tri {
+            self.add(self.at(g, 0, p[0]), self.at(g, 1, p[1]), p[2]);
+        }
+        for k in 0..2 {
+            let other = 1 - k;
+            for (i, &a) in tri.iter().enumerate() {
+                let b = tri[(i + 1) % 3];
+                if a[k] == b[k] {
+                    continue;
+                }
+                let (lo, hi) = if a[k] < b[k] { (a[k], b[k]) } else { (b[k], a[k]) };
+                for line in g.lines_within(k, lo, hi) {
+                    let s = (g.line(k, line) - a[k]) / (b[k] - a[k]);
+                    let (y, t) = (a[other] + s * (b[other] - a[other]), a[2] + s * (b[2] - a[2]));
+                    let (across, along) = (self.on_line(k, line), self.at(g, other, y));
+                    if k == 1 {
+                        self.add(along, across, t);
+                        continue;
+                    }
+                    self.add(across, along, t);
+                    if let Some(section) = self.sections.get_mut(line.wrapping_sub(first[0])) {
+                        *section = Some(match *section {
+                            None => [(y, t); 2],
+                            Some([low, high]) => [
+                                if y < low.0 { (y, t) } else { low },
+                                if y > high.0 { (y, t) } else { high },
+                            ],
+                        });
+                    }
+                }
+            }
+        }
+        // Where the triangle's section along a line of the first axis crosses the lines of
+        // the second: the corners of four cells.
+        let sections = std::mem::take(&mut self.sections);
+        for (k, section) in sections.iter().enumerate() {
+            let Some([(v0, t0), (v1, t1)]) = *section else {
+                continue;
+            };
+            for across in g.lines_within(1, v0, v1) {
+                let v = g.line(1, across);
+                if v0 < v && v < v1 {
+                    let t = t0 + (v - v0) * ((t1 - t0) / (v1 - v0));
+                    self.add(self.on_line(0, first[0] + k), self.on_line(1, across), t);
+                }
+            }
+        }
+        self.sections = sections;
+    }
+
+    /// The cells along grid axis k whose closed footprints hold coordinate x (never below the
+    /// origin): cell x / cell, and the one before where x lies on the line between them.
+    fn at(&self, g: &AxisGrid, k: usize, x: f64) -> Along {
+        let f = (x - g.origin[k]) / g.cell;
+        let i = f as usize;
+        let on_line = i as f64 == f;
+        self.place(k, i + 1 - usize::from(on_line), on_line)
+    }
+
+    /// The two cells along axis k on either side of line `line`.
+    fn on_line(&self, k: usize, line: usize) -> Along {
+        self.place(k, line, true)
+    }
+
+    /// Cell `cell_plus_one - 1` along axis k, and the next when `two`, as places in the
+    /// bordered block (whose place 0 is the border before its first cell): within the block
+    /// and its border whatever rounding did.
+    fn place(&self, k: usize, cell_plus_one: usize, two: bool) -> Along {
+        (cell_plus_one.saturating_sub(self.first[k]).min(self.cells[k]), two)
+    }
+
+    /// Counts height `t` in the cells `u` × `v`.
+    fn add(&mut self, u: Along, v: Along, t: f64) {
+        let width = self.cells[1] + 2;
+        let at = u.0 * width + v.0;
+        let mut put = |i: usize| {
+            let h = &mut self.heights[i];
+            *h = (h.0.min(t), h.1.max(t));
+        };
+        put(at);
+        if v.1 {
+            put(at + 1);
+        }
+        if u.1 {
+            put(at + width);
+            if v.1 {
+                put(at + width + 1);
+            }
+        }
+    }
 }
 
 /// Each cell's inside gaps, in order of height: cell c's are `list[starts[c]..starts[c + 1]]`.
@@ -333,121 +457,6 @@ impl Gaps {
     fn of(&self, c: usize) -> &[Gap] {
         &self.list[self.starts[c]..self.starts[c + 1]]
     }
-}
-
-/// A convex polygon in (u, v, t), clipped by Sutherland–Hodgman: a triangle clipped by four
-/// lines has at most seven corners.
-#[derive(Clone, Copy)]
-struct Polygon {
-    corners: [[f64; 3]; 8],
-    len: usize,
-}
-
-impl Polygon {
-    fn triangle(tri: &[[f64; 3]; 3]) -> Polygon {
-        let mut corners = [[0.0; 3]; 8];
-        corners[..3].copy_from_slice(tri);
-        Polygon { corners, len: 3 }
-    }
-
-    /// The part with coordinate `k` in the closed range `bounds`, if any. Inlined, so that each
-    /// caller's axis `k` is a constant in the clipping loops.
-    #[inline(always)]
-    fn clip(&self, k: usize, bounds: [f64; 2]) -> Option<Polygon> {
-        let lower = self.clip_side(k, bounds[0], true)?;
-        lower.clip_side(k, bounds[1], false)
-    }
-
-    /// The part on one side of coordinate `k` = `bound`: where it is at least `bound` when
-    /// `above`, else at most.
-    #[inline(always)]
-    fn clip_side(&self, k: usize, bound: f64, above: bool) -> Option<Polygon> {
-        // Wholly on the kept side, as the first and last of a triangle's strips often are: the
-        // corners as the clip would give them.
-        if self.corners[..self.len].iter().all(|p| keeps(p, k, bound, above)) {
-            return Some(*self);
-        }
-        let mut out = Polygon {
-            corners: [[0.0; 3]; 8],
-            len: 0,
-        };
-        self.clipped_corners(k, bound, above, |p| {
-            out.corners[out.len] = p;
-            out.len += 1;
-        });
-        (out.len > 0).then_some(out)
-    }
-
-    /// Each edge's two corners, in order around, the last edge back to the first corner.
-    #[inline(always)]
-    fn edges(&self) -> impl Iterator<Item = ([f64; 3], [f64; 3])> + '_ {
-        let corners = &self.corners[..self.len];
-        (0..self.len).map(|i| (corners[i], corners[if i + 1 == self.len { 0 } else { i + 1 }]))
-    }
-
-    /// Calls `corner` with each corner of [`Polygon::clip_side`]'s part, in order.
-    #[inline(always)]
-    fn clipped_corners(&self, k: usize, bound: f64, above: bool, mut corner: impl FnMut([f64; 3])) {
-        let keeps = |p: &[f64; 3]| keeps(p, k, bound, above);
-        for (a, b) in self.edges() {
-            if keeps(&a) {
-                corner(a);
-            }
-            if keeps(&a) != keeps(&b) {
-                let s = (bound - a[k]) / (b[k] - a[k]);
-                corner(std::array::from_fn(|j| {
-                    if j == k { bound } else { a[j] + s * (b[j] - a[j]) }
-                }));
-            }
-        }
-    }
-
-    /// The lowest and highest t of the part in each band along v, closed, band k over
-    /// [`lines[k]`, `lines[k + 1]`], lines `cell` apart, into `heights` (lowest above highest
-    /// where the part misses the band). t is linear over the polygon, so its extremes over a
-    /// band lie at corners in the band or where edges cross its two lines.
-    fn band_heights(&self, lines: &[f64], cell: f64, heights: &mut Vec<(f64, f64)>) {
-        let count = lines.len() - 1;
-        heights.clear();
-        heights.resize(count, (f64::INFINITY, f64::NEG_INFINITY));
-        let first = lines[0];
-        let mut add = |band: usize, t: f64| {
-            if let Some(h) = heights.get_mut(band) {
-                *h = (h.0.min(t), h.1.max(t));
-            }
-        };
-        for (a, b) in self.edges() {
-            let k = ((a[1] - first) / cell).max(0.0) as usize;
-            for band in k.saturating_sub(1)..(k + 2).min(count) {
-                if lines[band] <= a[1] && a[1] <= lines[band + 1] {
-                    add(band, a[2]);
-                }
-            }
-            let (lo, hi) = if a[1] < b[1] { (a, b) } else { (b, a) };
-            if lo[1] == hi[1] {
-                continue;
-            }
-            let slope = (hi[2] - lo[2]) / (hi[1] - lo[1]);
-            let first_line = ((lo[1] - first) / cell).max(0.0) as usize;
-            for (k, &v) in lines.iter().enumerate().skip(first_line) {
-                if v > hi[1] {
-                    break;
-                }
-                if v >= lo[1] {
-                    let t = lo[2] + (v - lo[1]) * slope;
-                    add(k.wrapping_sub(1), t);
-                    add(k, t);
-                }
-            }
-        }
-    }
-}
-
-/// Whether a clip keeps corner `p`: where its coordinate `k` is at least `bound` when `above`,
-/// else at most.
-#[inline(always)]
-fn keeps(p: &[f64; 3], k: usize, bound: f64, above: bool) -> bool {
-    if above { p[k] >= bound } else { p[k] <= bound }
 }
 
 /// Planes worth trying: evenly spaced along the axis, plus the middles of the thin gaps
@@ -494,9 +503,10 @@ struct PlaneCells {
     /// Whether the rectangle being taken has closed a cell of it.
     touched: bool,
     /// The search, over the bounding box of the cells open when it first ran (from the corner
-    /// given), and the first to the last of its rows where a cell has closed since it last ran.
+    /// given), and its rows from the first to past the last where cells closed since it last
+    /// ran: all of them before it first runs.
     sweep: Option<([usize; 2], Sweep)>,
-    dirty: std::ops::Range<usize>,
+    dirty: Option<std::ops::Range<usize>>,
 }
 
 /// The candidate planes of one axis grid, and which of them each gap holds.
@@ -541,7 +551,7 @@ impl Planes {
                 open_cells: 0,
                 touched: false,
                 sweep: None,
-                dirty: 0..usize::MAX,
+                dirty: None,
             })
             .collect();
         let mut all = Planes {
@@ -664,7 +674,13 @@ impl Planes {
             self.touched.push(i);
         }
         if let Some(([u0, _], _)) = plane.sweep {
-            plane.dirty = plane.dirty.start.min(u - u0)..plane.dirty.end.max(u - u0 + 1);
+            let row = u - u0;
+            plane.dirty = Some(
+                plane
+                    .dirty
+                    .take()
+                    .map_or(row..row + 1, |d| d.start.min(row)..d.end.max(row + 1)),
+            );
         }
         if in_best {
             plane.state = Bound::Stale;
@@ -706,21 +722,21 @@ impl Planes {
                     .is_none_or(|(_, sweep)| 2 * rows * columns <= sweep.cells())
                 {
                     plane.sweep = Some((lo, Sweep::new(rows, columns, MIN_SIDE)));
-                    plane.dirty = 0..usize::MAX;
+                    plane.dirty = Some(0..usize::MAX);
                 }
             }
         }
         plane.best = plane.sweep.as_mut().and_then(|([u0, v0], sweep)| {
             let first = *u0 * row_words + *v0 / 64;
             sweep
-                .run(plane.dirty.clone(), &plane.open[first..], row_words)
+                .run(plane.dirty.clone().unwrap_or(0..0), &plane.open[first..], row_words)
                 .filter(|r| r.cells() >= MIN_CELLS)
                 .map(|r| CellRect {
                     u: r.u.map(|u| u + *u0),
                     v: r.v.map(|v| v + *v0),
                 })
         });
-        plane.dirty = usize::MAX..0;
+        plane.dirty = None;
         plane.bound = plane.best.map_or(0, |r| r.cells());
         plane.state = Bound::Exact;
         self.bound_subsets(i);
@@ -907,43 +923,80 @@ mod tests {
         }
     }
 
+    /// The part of a convex polygon with coordinate `k` on one side of `bound`, closed
+    /// (Sutherland–Hodgman).
+    fn clip_side(polygon: &[[f64; 3]], k: usize, bound: f64, above: bool) -> Vec<[f64; 3]> {
+        let keeps = |p: &[f64; 3]| if above { p[k] >= bound } else { p[k] <= bound };
+        let mut out = Vec::new();
+        for (i, a) in polygon.iter().enumerate() {
+            let b = &polygon[(i + 1) % polygon.len()];
+            if keeps(a) {
+                out.push(*a);
+            }
+            if keeps(a) != keeps(b) {
+                let s = (bound - a[k]) / (b[k] - a[k]);
+                out.push(std::array::from_fn(|j| {
+                    if j == k { bound } else { a[j] + s * (b[j] - a[j]) }
+                }));
+            }
+        }
+        out
+    }
+
     #[test]
-    fn band_heights_are_those_of_the_strip_clipped_to_each_band() {
+    fn cell_heights_are_those_of_the_triangle_clipped_to_each_cell() {
         let mut rng = fastrand::Rng::with_seed(3);
-        let mut heights = Vec::new();
-        for _ in 0..2000 {
-            // Corners on the lines now and then, as a mesh on the grid has them.
+        let mut cells = CellHeights::default();
+        let g = AxisGrid {
+            turn: DQuat::IDENTITY,
+            axis: 2,
+            origin: [0.0, 0.0],
+            cell: 0.5,
+            dims: [7, 7],
+        };
+        for round in 0..4000 {
+            // Corners on the lines now and then, as a mesh on the grid has them, and walls
+            // standing on the grid now and then.
             let coordinate = |rng: &mut fastrand::Rng| match rng.usize(0..4) {
-                0 => rng.usize(0..6) as f64 * 0.5,
-                _ => rng.f64() * 3.0,
+                0 => rng.usize(0..8) as f64 * 0.5,
+                _ => rng.f64() * 3.5,
             };
-            let tri: [[f64; 3]; 3] = std::array::from_fn(|_| [0.0, coordinate(&mut rng), rng.f64() * 10.0 - 5.0]);
-            let (origin, cell) = (0.0, 0.5);
-            let lo = tri.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min);
-            let hi = tri.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max);
-            let g = AxisGrid {
-                turn: DQuat::IDENTITY,
-                axis: 2,
-                origin: [0.0, origin],
-                cell,
-                dims: [1, 7],
-            };
-            let bands = g.range(1, lo, hi);
-            let polygon = Polygon::triangle(&tri);
-            let lines: Vec<f64> = (bands.start..=bands.end).map(|k| g.line(1, k)).collect();
-            polygon.band_heights(&lines, cell, &mut heights);
-            for (k, &(t0, t1)) in bands.zip(&heights) {
-                let band = [origin + k as f64 * cell, origin + (k + 1) as f64 * cell];
-                let clipped = polygon.clip(1, band).map(|part| {
-                    let ts = part.corners[..part.len].iter().map(|p| p[2]);
-                    (
-                        ts.clone().fold(f64::INFINITY, f64::min),
-                        ts.fold(f64::NEG_INFINITY, f64::max),
-                    )
+            let mut tri: [[f64; 3]; 3] =
+                std::array::from_fn(|_| [coordinate(&mut rng), coordinate(&mut rng), rng.f64() * 10.0 - 5.0]);
+            if round % 10 == 0 {
+                let k = rng.usize(0..2);
+                let wall = coordinate(&mut rng);
+                tri.iter_mut().for_each(|p| p[k] = wall);
+            }
+            let bounds = |k: usize| {
+                let (lo, hi) = tri.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                    (lo.min(p[k]), hi.max(p[k]))
                 });
-                match clipped {
-                    Some((c0, c1)) => assert!((c0 - t0).abs() < 1e-9 && (c1 - t1).abs() < 1e-9, "{tri:?} band {k}"),
-                    None => assert!(t0 > t1, "{tri:?} band {k}: ({t0}, {t1}) where the clip is empty"),
+                g.range(k, lo, hi)
+            };
+            let (ru, rv) = (bounds(0), bounds(1));
+            cells.of_triangle(&tri, &g, [ru.start, rv.start], [ru.len(), rv.len()]);
+            let width = rv.len() + 2;
+            let each = ru.clone().flat_map(|u| rv.clone().map(move |v| (u, v)));
+            for (u, v) in each {
+                let (t0, t1) = cells.heights[(u + 1 - ru.start) * width + v + 1 - rv.start];
+                let mut part = tri.to_vec();
+                for (k, index) in [(0, u), (1, v)] {
+                    part = clip_side(&part, k, g.line(k, index), true);
+                    part = clip_side(&part, k, g.line(k, index + 1), false);
+                }
+                let ts = part.iter().map(|p| p[2]);
+                let (c0, c1) = (
+                    ts.clone().fold(f64::INFINITY, f64::min),
+                    ts.fold(f64::NEG_INFINITY, f64::max),
+                );
+                if part.is_empty() {
+                    assert!(t0 > t1, "{tri:?} cell {u} {v}: ({t0}, {t1}) where the clip is empty");
+                } else {
+                    assert!(
+                        (c0 - t0).abs() < 1e-9 && (c1 - t1).abs() < 1e-9,
+                        "{tri:?} cell {u} {v}: ({t0}, {t1}) against ({c0}, {c1})"
+                    );
                 }
             }
         }

@@ -130,9 +130,8 @@ fn grow_heights(row: &mut [Height], above: Option<&[Height]>, bits: &[u64]) {
         let (above_eights, above_rest) = above.as_chunks::<8>();
         for (b, (heights, above)) in eights.iter_mut().zip(above_eights).enumerate() {
             let lanes = &BYTE_LANES[(word >> (8 * b)) as usize & 0xff];
-            for j in 0..8 {
-                heights[j] = (above[j] + 1) & lanes[j];
-            }
+            // Read whole before it is written: written lane by lane, LLVM keeps it scalar.
+            *heights = std::array::from_fn(|j| (above[j] + 1) & lanes[j]);
         }
         let first = 8 * eights.len();
         for (j, (height, above)) in rest.iter_mut().zip(above_rest).enumerate() {

@@ -705,8 +705,8 @@ impl Planes {
     }
 
     /// Searches plane `i`'s open cells for its best rectangle: over their bounding box, then
-    /// again over the rows where cells closed and those whose heights that changes, until the open cells fit in half
-    /// that box, when the search starts anew over their box.
+    /// again over the rows where cells closed and those whose heights that changes, until the
+    /// open cells fit in half that box, when the search starts anew over their box.
     fn search(&mut self, i: usize) {
         let row_words = self.row_words;
         let plane = &mut self.list[i];
@@ -729,14 +729,13 @@ impl Planes {
         plane.best = plane.sweep.as_mut().and_then(|([u0, v0], sweep)| {
             let first = *u0 * row_words + *v0 / 64;
             sweep
-                .run(plane.dirty.clone().unwrap_or(0..0), &plane.open[first..], row_words)
+                .run(plane.dirty.take().unwrap_or(0..0), &plane.open[first..], row_words)
                 .filter(|r| r.cells() >= MIN_CELLS)
                 .map(|r| CellRect {
                     u: r.u.map(|u| u + *u0),
                     v: r.v.map(|v| v + *v0),
                 })
         });
-        plane.dirty = None;
         plane.bound = plane.best.map_or(0, |r| r.cells());
         plane.state = Bound::Exact;
         self.bound_subsets(i);

@@ -195,8 +195,7 @@ impl Sweep {
     /// since the last run; the first run, or one after any other change, passes every row.
     /// Cell (u, v) is open when bit v % 64 of `open[u * stride + v / 64]` is set.
     pub fn run(&mut self, changed: std::ops::Range<usize>, open: &[u64], stride: usize) -> Option<CellRect> {
-        let (nv, nu, words) = (self.nv, self.best.len(), self.words);
-        let row_bits = |u: usize| &open[u * stride..u * stride + words];
+        let (nv, nu) = (self.nv, self.best.len());
         // The row before may have been skipped for what the changed row held: redo it too.
         let from = changed.start.min(nu).saturating_sub(1);
         // Once a row past the changed ones has the heights it had, so do all after it, and
@@ -212,7 +211,7 @@ impl Sweep {
                 }
                 // The row above; none on the first.
                 let above = &done[done.len().saturating_sub(nv)..];
-                grow_heights(row, (u > 0).then_some(above), row_bits(u));
+                grow_heights(row, (u > 0).then_some(above), row_bits(open, u, stride, self.words));
                 settled = past && *row == *self.before;
             }
             let best = if u > 0 { self.best[u - 1] } else { None };
@@ -237,18 +236,21 @@ impl Sweep {
     /// `best`, the best of the rows before.
     fn search_row(&mut self, u: usize, open: &[u64], stride: usize, best: Option<CellRect>) -> RowBest {
         let (nv, nu, words) = (self.nv, self.best.len(), self.words);
-        let row_bits = |u: usize| &open[u * stride..u * stride + words];
-        let bits = row_bits(u);
+        let bits = row_bits(open, u, stride, words);
         // Each rectangle of a row whose open cells the next row holds too grows into a larger
         // one ending there: the row need not be searched.
-        let grows_on = u + 1 < nu && bits.iter().zip(row_bits(u + 1)).all(|(a, b)| a & !b == 0);
+        let grows_on = u + 1 < nu
+            && bits
+                .iter()
+                .zip(row_bits(open, u + 1, stride, words))
+                .all(|(a, b)| a & !b == 0);
         if grows_on || u + 1 < self.min_side {
             return RowBest::AtMost(0);
         }
         // Columns at least `min_side` high: open on the last `min_side` rows.
         self.live.copy_from_slice(bits);
         for k in 1..self.min_side {
-            for (live, word) in self.live.iter_mut().zip(row_bits(u - k)) {
+            for (live, word) in self.live.iter_mut().zip(row_bits(open, u - k, stride, words)) {
                 *live &= word;
             }
         }
@@ -268,6 +270,11 @@ impl Sweep {
             _ => RowBest::AtMost(threshold),
         }
     }
+}
+
+/// Row `u`'s `words` words of bits, rows `stride` words apart.
+fn row_bits(open: &[u64], u: usize, stride: usize, words: usize) -> &[u64] {
+    &open[u * stride..u * stride + words]
 }
 
 #[cfg(test)]

@@ -1,10 +1,53 @@
 //! What several stages share and that imports nothing of the pipeline: cameras and their
 //! projections ([`camera`]), the rasterizer that draws meshes through them ([`raster`], with its
 //! GPU twin), which triangles lie near a point ([`proximity`]), and the openings of a mesh
-//! narrower than a width, closed ([`openings`]), and items grouped by a dense key ([`buckets`]).
+//! narrower than a width, closed ([`openings`]), items grouped by a dense key ([`buckets`]), and
+//! the conversions between pixel or cell indices and floats that their inner loops make.
 
 pub mod buckets;
 pub mod camera;
 pub mod openings;
 pub mod proximity;
 pub mod raster;
+
+// On the baseline x86-64 target, usize's conversions to and from f64 take a dozen instructions
+// (it has no unsigned ones) and `floor`/`ceil` are library calls; through i32 and u32 they
+// take one or two. Pixel and cell indices stay far below 2³¹.
+
+/// `index` as a float.
+#[inline(always)]
+pub fn index_to_f64(index: usize) -> f64 {
+    f64::from(index as u32)
+}
+
+/// The greatest index at or below `v`, for v < 2³¹; 0 for negatives and NaN, as `v as usize`.
+#[inline(always)]
+pub fn floor_index(v: f64) -> usize {
+    (v as i32).max(0) as usize
+}
+
+/// The least index at or above `v`, for v < 2³¹; 0 for negatives and NaN.
+#[inline(always)]
+pub fn ceil_index(v: f64) -> usize {
+    let below = (v as i32).max(0);
+    below as usize + usize::from(f64::from(below) < v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn index_conversions_agree_with_usize_and_rounding() {
+        let values = (-40..40)
+            .map(|k| f64::from(k) * 0.37)
+            .chain([0.0, -0.0, 1.0, 255.0, 255.5, 1e9, f64::NAN]);
+        for v in values {
+            assert_eq!(floor_index(v), v as usize, "{v}");
+            assert_eq!(ceil_index(v), v.ceil() as usize, "{v}");
+        }
+        for i in [0, 1, 255, 65_536, (1 << 31) - 1] {
+            assert_eq!(index_to_f64(i), i as f64);
+        }
+    }
+}

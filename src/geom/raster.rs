@@ -6,6 +6,7 @@ pub mod covered;
 pub mod gpu;
 
 use crate::geom::camera::{Lens, View};
+use crate::geom::{ceil_index, floor_index, index_to_f64};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
@@ -182,13 +183,15 @@ fn fill(
         Coverage::Whole => (0.0, 1.0),
     };
     let pixels = |lo: f64, hi: f64, (first, last): (usize, usize)| -> Option<(usize, usize)> {
-        let (a, b) = ((lo - inset).max(first as f64), (hi - reach).min(last as f64));
+        let (a, b) = (
+            (lo - inset).max(index_to_f64(first)),
+            (hi - reach).min(index_to_f64(last)),
+        );
         // Also rejects NaN.
         if a.partial_cmp(&b).is_none_or(|o| o.is_gt()) {
             return None;
         }
-        let first = a as usize + usize::from((a as usize as f64) < a);
-        let last = b as usize;
+        let (first, last) = (ceil_index(a), floor_index(b));
         (first <= last).then_some((first, last))
     };
     let (Some((x0, x1)), Some((y0, y1))) = (pixels(lo.x, hi.x, within.x), pixels(lo.y, hi.y, within.y)) else {
@@ -247,7 +250,7 @@ fn fill_whole(view: &View, p: [DVec3; 3], area: f64, span: Span, depth: impl Fn(
     };
     for y in span.y.0..=span.y.1 {
         for x in span.x.0..=span.x.1 {
-            let (x_f, y_f) = (x as f64, y as f64);
+            let (x_f, y_f) = (index_to_f64(x), index_to_f64(y));
             let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
                 .map(|(dx, dy)| weights(DVec2::new(x_f + dx, y_f + dy)));
             if corners.iter().flatten().all(|&v| v >= 0.0) {
@@ -298,8 +301,9 @@ fn fill_centres<V: Pixels>(
     let per_area = 1.0 / area;
     let depth_at = |f: [f64; 3]| depth(interpolate(&p, f.map(|f| f * per_area)));
     // The edges' functions at the centres of row y are `function(k, x)` of its `rows`.
-    let rows = |y: usize| edges.map(|(e, o)| e.x * ((y as f64 + 0.5) - o.y));
-    let in_row = |rows: [f64; 3]| move |k: usize, x: usize| rows[k] - edges[k].0.y * ((x as f64 + 0.5) - edges[k].1.x);
+    let rows = |y: usize| edges.map(|(e, o)| e.x * ((index_to_f64(y) + 0.5) - o.y));
+    let in_row =
+        |rows: [f64; 3]| move |k: usize, x: usize| rows[k] - edges[k].0.y * ((index_to_f64(x) + 0.5) - edges[k].1.x);
     let (x0, x1) = span.x;
     if !V::RUNS && (x1 - x0 + 1) * (span.y.1 - span.y.0 + 1) <= SMALL {
         // Few pixels: each tested alone, with the same operations.

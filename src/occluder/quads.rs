@@ -17,6 +17,7 @@
 use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape};
 use crate::geom::buckets::Buckets;
+use crate::geom::{ceil_index, floor_index};
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
 use glam::{DQuat, DVec3};
@@ -86,8 +87,7 @@ impl AxisGrid {
     /// or take rounding. Without rounding calls: the coordinates are never below the origin.
     fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::RangeInclusive<usize> {
         let (a, b) = ((lo - self.origin[k]) / self.cell, (hi - self.origin[k]) / self.cell);
-        let first = a as usize + usize::from((a as usize as f64) < a);
-        first..=(b as usize).min(self.dims[k])
+        ceil_index(a)..=floor_index(b).min(self.dims[k])
     }
 
     /// Cells whose closed footprint meets [lo, hi] along grid axis k.

@@ -372,8 +372,13 @@ impl OpenViews {
                 }
             }
         };
-        if horizon.is_some() {
-            rasterize(view, triangle, visit);
+        if let Some(horizon) = horizon {
+            // A triangle wholly above the opening's highest point counts nowhere: its pixels
+            // unproject to points of it, give or take rounding.
+            let lowest = triangle[0].y.min(triangle[1].y).min(triangle[2].y);
+            if lowest - 1e-9 * self.pixel * PIXELS as f64 <= horizon {
+                rasterize(view, triangle, visit);
+            }
             return;
         }
         let corners = triangle.map(|p| view.project(p));
@@ -655,23 +660,28 @@ mod tests {
     }
 
     #[test]
-    fn tiles_behind_the_depths_hide_no_pixel_a_whole_triangle_shows() {
+    fn tiles_behind_the_depths_and_heights_above_an_opening_hide_no_pixel_a_whole_triangle_shows() {
         let views = views_of(split_cube(0.02));
         let mut rng = fastrand::Rng::with_seed(9);
-        let (mut shown, mut hidden) = (0, 0);
+        let (mut shown, mut hidden, mut eyes_shown) = (0, 0, 0);
         for case in 0..300 {
             // Inside the cube, across its faces and the crack, large and small.
             let scale = [0.05, 0.3, 1.2][case % 3];
             let centre = DVec3::new(rng.f64(), rng.f64(), rng.f64());
             let triangle: [DVec3; 3] =
                 std::array::from_fn(|_| centre + (DVec3::new(rng.f64(), rng.f64(), rng.f64()) - 0.5) * scale);
-            for v in (0..views.sky_views).step_by(9) {
+            // The sky's views, and the cameras in the crack, which count nothing above it.
+            for v in (0..views.sky_views)
+                .step_by(9)
+                .chain(views.sky_views..views.views.len())
+            {
                 let view = &views.views[v];
                 let depth = &views.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS];
                 let mut whole = Vec::new();
                 rasterize(view, &triangle, |i, d| {
-                    if d < f64::from(depth[i]) - view.depth_tolerance() {
-                        whole.push(view.unproject(i, d).to_array().map(f64::to_bits));
+                    let p = view.unproject(i, d);
+                    if d < f64::from(depth[i]) - view.depth_tolerance() && views.horizon(v).is_none_or(|h| p.y <= h) {
+                        whole.push(p.to_array().map(f64::to_bits));
                     }
                 });
                 let mut by_tiles = Vec::new();
@@ -681,11 +691,12 @@ mod tests {
                 assert_eq!(whole, by_tiles, "case {case}, view {v}");
                 shown += whole.len();
                 hidden += usize::from(whole.is_empty());
+                eyes_shown += usize::from(v >= views.sky_views && !whole.is_empty());
             }
         }
         assert!(
-            shown > 10_000 && hidden > 500,
-            "{shown} pixels shown, {hidden} triangles hidden"
+            shown > 10_000 && hidden > 500 && eyes_shown > 100,
+            "{shown} pixels shown, {hidden} triangles hidden, {eyes_shown} shown to cameras in the crack"
         );
     }
 

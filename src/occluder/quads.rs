@@ -17,7 +17,7 @@
 use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape};
 use crate::geom::buckets::Buckets;
-use crate::geom::{ceil_index, floor_index};
+use crate::geom::{ceil_index, floor_index, index_to_f64};
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
 use glam::{DQuat, DVec3};
@@ -80,7 +80,7 @@ impl AxisGrid {
     /// The line before cell `index` along grid axis k: one expression for the quads' corners
     /// and the blocked heights' clip lines, so that both see the same values.
     fn line(&self, k: usize, index: usize) -> f64 {
-        self.origin[k] + index as f64 * self.cell
+        self.origin[k] + index_to_f64(index) * self.cell
     }
 
     /// The lines along grid axis k (as indices for [`AxisGrid::line`]) within [lo, hi], give
@@ -92,8 +92,11 @@ impl AxisGrid {
 
     /// Cells whose closed footprint meets [lo, hi] along grid axis k.
     fn range(&self, k: usize, lo: f64, hi: f64) -> std::ops::Range<usize> {
-        let a = ((lo - self.origin[k]) / self.cell - 1.0).ceil().max(0.0) as usize;
-        let b = (((hi - self.origin[k]) / self.cell).floor() as i64 + 1).clamp(0, self.dims[k] as i64) as usize;
+        let a = ceil_index((lo - self.origin[k]) / self.cell - 1.0);
+        let b = match (hi - self.origin[k]) / self.cell {
+            f if f < 0.0 => 0,
+            f => (floor_index(f) + 1).min(self.dims[k]),
+        };
         a.min(b)..b
     }
 }
@@ -181,8 +184,8 @@ fn inside_gaps(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, margin: f64, sol
                 let ranges = &mut row[starts[c] - starts[u * nv]..starts[c + 1] - starts[u * nv]];
                 ranges.sort_unstable_by(|a, b| a.heights.0.total_cmp(&b.heights.0));
                 let center = [
-                    g.origin[0] + (u as f64 + 0.5) * g.cell,
-                    g.origin[1] + (v as f64 + 0.5) * g.cell,
+                    g.origin[0] + (index_to_f64(u) + 0.5) * g.cell,
+                    g.origin[1] + (index_to_f64(v) + 0.5) * g.cell,
                 ];
                 // The gaps, each with the index of the first block above it.
                 found.clear();
@@ -409,8 +412,8 @@ impl CellHeights {
     /// origin): cell x / cell, and the one before where x lies on the line between them.
     fn at(&self, g: &AxisGrid, k: usize, x: f64) -> Along {
         let f = (x - g.origin[k]) / g.cell;
-        let i = f as usize;
-        let on_line = i as f64 == f;
+        let i = floor_index(f);
+        let on_line = index_to_f64(i) == f;
         self.place(k, i + 1 - usize::from(on_line), on_line)
     }
 

@@ -4,6 +4,7 @@
 
 use crate::config::CookSettings;
 use crate::mesh::Mesh;
+use rayon::slice::ParallelSliceMut;
 
 /// Bumped whenever the pipeline's output for the same input and settings can change.
 pub const PIPELINE_VERSION: &str = "occluder-cook/pipeline/3";
@@ -18,7 +19,7 @@ pub fn cache_key(mesh: &Mesh, settings: &CookSettings) -> String {
             [c[first], c[(first + 1) % 3], c[(first + 2) % 3]]
         })
         .collect();
-    triangles.sort_unstable();
+    triangles.par_sort_unstable();
     let mut hasher = blake3::Hasher::new();
     hasher.update(PIPELINE_VERSION.as_bytes());
     hasher.update(&[0]);
@@ -31,12 +32,13 @@ pub fn cache_key(mesh: &Mesh, settings: &CookSettings) -> String {
     hasher.update(settings.to_string().as_bytes());
     hasher.update(&[0]);
     hasher.update(&(triangles.len() as u64).to_le_bytes());
-    for t in &triangles {
-        for c in t {
-            for v in c {
-                hasher.update(&v.to_le_bytes());
-            }
-        }
-    }
+    // One update: four bytes at a time, the hasher's own overhead was most of this stage.
+    let bytes: Vec<u8> = triangles
+        .iter()
+        .flatten()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    hasher.update(&bytes);
     hasher.finalize().to_hex().to_string()
 }

@@ -32,7 +32,7 @@ pub fn cache_key(mesh: &Mesh, settings: &CookSettings) -> String {
     hasher.update(settings.to_string().as_bytes());
     hasher.update(&[0]);
     hasher.update(&(triangles.len() as u64).to_le_bytes());
-    // One update: four bytes at a time, the hasher's own overhead was most of this stage.
+    // In one update: fed four bytes at a time, the hasher's own overhead was most of this stage.
     let bytes: Vec<u8> = triangles
         .iter()
         .flatten()

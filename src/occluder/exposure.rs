@@ -161,6 +161,12 @@ impl OpenViews {
         self.cracks
     }
 
+    /// What rounding may move a depth the rasterizer interpolates, or a point it unprojects: a
+    /// billionth of the views' width.
+    fn rounding(&self) -> f64 {
+        1e-9 * (self.pixel * PIXELS as f64)
+    }
+
     /// For a camera in an opening, the height up to which it counts what it sees.
     fn horizon(&self, view: usize) -> Option<f64> {
         view.checked_sub(self.sky_views).map(|e| self.horizons[e])
@@ -376,7 +382,7 @@ impl OpenViews {
             // A triangle wholly above the opening's highest point counts nowhere: its pixels
             // unproject to points of it, give or take rounding.
             let lowest = triangle[0].y.min(triangle[1].y).min(triangle[2].y);
-            if lowest - 1e-9 * self.pixel * PIXELS as f64 <= horizon {
+            if lowest - self.rounding() <= horizon {
                 rasterize(view, triangle, visit);
             }
             return;
@@ -401,7 +407,7 @@ impl OpenViews {
         }
         // Else only the runs of tiles where the triangle may lie in front of the tile's
         // farthest depth are drawn: elsewhere no pixel of it shows.
-        let nearest = NearestDepth::new(corners, self.pixel * PIXELS as f64);
+        let nearest = NearestDepth::new(corners, self.rounding());
         let hidden = |tx: usize, ty: usize| {
             let centres = |t: usize| [(t * TILE) as f64 + 0.5, ((t + 1) * TILE) as f64 - 0.5];
             nearest.over(centres(tx), centres(ty)) >= f64::from(far[ty * tiles + tx]) - tolerance
@@ -439,8 +445,8 @@ struct NearestDepth {
 }
 
 impl NearestDepth {
-    /// `corners` as [`View::project`] gives them; `depths` is the range of the view's depths.
-    fn new(corners: [DVec3; 3], depths: f64) -> NearestDepth {
+    /// `corners` as [`View::project`] gives them; `margin` as [`OpenViews::rounding`] gives it.
+    fn new(corners: [DVec3; 3], margin: f64) -> NearestDepth {
         let (a, b) = (corners[1] - corners[0], corners[2] - corners[0]);
         let area = a.x * b.y - a.y * b.x;
         let slope = [(a.z * b.y - b.z * a.y) / area, (b.z * a.x - a.z * b.x) / area];
@@ -448,7 +454,7 @@ impl NearestDepth {
             corners,
             nearest_corner: corners[0].z.min(corners[1].z).min(corners[2].z),
             slope: slope.iter().all(|s| s.is_finite()).then_some(slope),
-            margin: 1e-9 * depths,
+            margin,
         }
     }
 

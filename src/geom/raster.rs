@@ -276,79 +276,113 @@ fn fill_centres<V: Pixels>(
     visit: &mut V,
 ) {
     let q = p.map(|v| v.truncate());
+    // Edge k's function f at a centre c is `cross(q[k + 2] - q[k + 1], c - q[k + 1])`, computed
+    // in the same operations as `fill_whole`'s weights, so that the pixels and depths are those
+    // of the pixel-by-pixel test to the bit. Its weight f / area is at least 0 exactly where f
+    // has the area's sign, so only the pixels drawn pay for the divisions. The edges of a
+    // clockwise triangle are negated, and its area with them: negation is exact, so every
+    // function is negated to the bit and holds where it is at least 0, and the weights stay.
+    let sign = area.signum();
+    let edges = [(q[2] - q[1], q[1]), (q[0] - q[2], q[2]), (q[1] - q[0], q[0])].map(|(e, o)| (e * sign, o));
+    let area = area.abs();
+    let rows = Rows { edges, area, span };
+    if eroded == [false; 3] {
+        rows.fill(view, &p, |_, f| f >= 0.0, depth, visit);
+        return;
+    }
     // How far inside each edge a pixel centre must be, as a weight, for the pixel's square to be:
     // across the square, the edge's function changes by half the sum of its |dx| and |dy|.
     let insets: [f64; 3] = std::array::from_fn(|k| {
-        let edge = q[(k + 2) % 3] - q[(k + 1) % 3];
+        let edge = edges[k].0;
         if eroded[k] {
-            0.5 * (edge.x.abs() + edge.y.abs()) / area.abs()
+            0.5 * (edge.x.abs() + edge.y.abs()) / area
         } else {
             0.0
         }
     });
-    // Edge k's function f at a centre c is `cross(q[k + 2] - q[k + 1], c - q[k + 1])`, computed
-    // in the same operations as `fill_whole`'s weights, so that the pixels and depths are those
-    // of the pixel-by-pixel test to the bit. Its weight f / area is at least 0 exactly where f
-    // has the area's sign, so only the pixels drawn pay for the divisions.
-    let edges = [(q[2] - q[1], q[1]), (q[0] - q[2], q[2]), (q[1] - q[0], q[0])];
     let holds = |k: usize, f: f64| match insets[k] {
-        0.0 if area > 0.0 => f >= 0.0,
-        0.0 => f <= 0.0,
+        0.0 => f >= 0.0,
         inset => f / area >= inset,
     };
-    // Depths weigh the corners by edge function times this, not over the area: three
-    // multiplications a pixel instead of three divisions.
-    let per_area = 1.0 / area;
-    let depth_at = |f: [f64; 3]| depth(interpolate(&p, f.map(|f| f * per_area)));
-    // The edges' functions at the centres of row y are `function(k, x)` of its `rows`.
-    let rows = |y: usize| edges.map(|(e, o)| e.x * ((index_to_f64(y) + 0.5) - o.y));
-    let in_row =
-        |rows: [f64; 3]| move |k: usize, x: usize| rows[k] - edges[k].0.y * ((index_to_f64(x) + 0.5) - edges[k].1.x);
-    let (x0, x1) = span.x;
-    if !V::RUNS && (x1 - x0 + 1) * (span.y.1 - span.y.0 + 1) <= SMALL {
-        // Few pixels: each tested alone, with the same operations.
-        for y in span.y.0..=span.y.1 {
-            let function = in_row(rows(y));
-            for x in x0..=x1 {
-                let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
-                if holds(0, f[0]) & holds(1, f[1]) & holds(2, f[2]) {
-                    visit.pixel(y * view.pixels + x, depth_at(f));
+    rows.fill(view, &p, holds, depth, visit);
+}
+
+/// A triangle's edges as [`fill_centres`] turns them, each with a corner on it, its area, and
+/// the pixels its samples may cover.
+struct Rows {
+    edges: [(DVec2, DVec2); 3],
+    area: f64,
+    span: Span,
+}
+
+impl Rows {
+    /// Visits the pixels whose centres pass `holds` (edge k, its function there) for every edge,
+    /// at `depth` of the corners' values weighed there.
+    fn fill<V: Pixels>(
+        &self,
+        view: &View,
+        p: &[DVec3; 3],
+        holds: impl Fn(usize, f64) -> bool,
+        depth: impl Fn(f64) -> f64,
+        visit: &mut V,
+    ) {
+        let Rows { edges, area, span } = *self;
+        // Depths weigh the corners by edge function times this, not over the area: three
+        // multiplications a pixel instead of three divisions.
+        let per_area = 1.0 / area;
+        let depth_at = |f: [f64; 3]| depth(interpolate(p, f.map(|f| f * per_area)));
+        // The edges' functions at the centres of row y are `function(k, x)` of its `rows`.
+        let rows = |y: usize| edges.map(|(e, o)| e.x * ((index_to_f64(y) + 0.5) - o.y));
+        let in_row = |rows: [f64; 3]| {
+            move |k: usize, x: usize| rows[k] - edges[k].0.y * ((index_to_f64(x) + 0.5) - edges[k].1.x)
+        };
+        let (x0, x1) = span.x;
+        if !V::RUNS && (x1 - x0 + 1) * (span.y.1 - span.y.0 + 1) <= SMALL {
+            // Few pixels: each tested alone, with the same operations.
+            for y in span.y.0..=span.y.1 {
+                let function = in_row(rows(y));
+                for x in x0..=x1 {
+                    let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
+                    if holds(0, f[0]) & holds(1, f[1]) & holds(2, f[2]) {
+                        visit.pixel(y * view.pixels + x, depth_at(f));
+                    }
                 }
             }
+            return;
         }
-        return;
-    }
-    // Along a row each edge's function is monotone, rounding and all: an edge whose function
-    // rises towards the triangle's side only starts to hold, the others only stop. The run of
-    // pixels drawn starts where the last rising edge holds, found by bisection, and ends before
-    // the first other edge stops holding: found by bisection too for a sink of runs or a long
-    // row, else as the pixels are drawn (most runs of a detailed mesh are a pixel or two long).
-    let rising = edges.map(|(e, _)| e.y * area < 0.0);
-    for y in span.y.0..=span.y.1 {
-        let function = in_row(rows(y));
-        let first = first_where(x0, x1 + 1, |x| (0..3).all(|k| !rising[k] || holds(k, function(k, x))));
-        let ends_after = |x| (0..3).any(|k| !rising[k] && !holds(k, function(k, x)));
-        if V::RUNS {
-            let end = first_where(first, x1 + 1, ends_after);
-            if first < end {
-                visit.run(y * view.pixels, first..=end - 1);
+        // Along a row each edge's function is monotone, rounding and all: an edge whose function
+        // rises towards the triangle's side only starts to hold, the others only stop. The run
+        // of pixels drawn starts where the last rising edge holds, found by bisection, and ends
+        // before the first other edge stops holding: found by bisection too for a sink of runs
+        // or a long row, else as the pixels are drawn (most runs of a detailed mesh are a pixel
+        // or two long).
+        let rising = edges.map(|(e, _)| e.y * area < 0.0);
+        for y in span.y.0..=span.y.1 {
+            let function = in_row(rows(y));
+            let first = first_where(x0, x1 + 1, |x| (0..3).all(|k| !rising[k] || holds(k, function(k, x))));
+            let ends_after = |x| (0..3).any(|k| !rising[k] && !holds(k, function(k, x)));
+            if V::RUNS {
+                let end = first_where(first, x1 + 1, ends_after);
+                if first < end {
+                    visit.run(y * view.pixels, first..=end - 1);
+                }
+                continue;
             }
-            continue;
-        }
-        let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
-        if x1 + 1 - first >= LONG_ROW {
-            // A long row's end is bisected too, and its pixels drawn without tests.
-            for x in first..first_where(first, x1 + 1, ends_after) {
-                visit.pixel(y * view.pixels + x, depth_at(at(x)));
+            let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
+            if x1 + 1 - first >= LONG_ROW {
+                // A long row's end is bisected too, and its pixels drawn without tests.
+                for x in first..first_where(first, x1 + 1, ends_after) {
+                    visit.pixel(y * view.pixels + x, depth_at(at(x)));
+                }
+                continue;
             }
-            continue;
-        }
-        for x in first..=x1 {
-            let f = at(x);
-            if !(0..3).all(|k| holds(k, f[k])) {
-                break;
+            for x in first..=x1 {
+                let f = at(x);
+                if !(0..3).all(|k| holds(k, f[k])) {
+                    break;
+                }
+                visit.pixel(y * view.pixels + x, depth_at(f));
             }
-            visit.pixel(y * view.pixels + x, depth_at(f));
         }
     }
 }

@@ -102,6 +102,15 @@ impl View {
         }
     }
 
+    /// A perspective view's rays as rise (world y) per unit of depth: the most that any ray
+    /// through the image rises or falls, and the most that two rays up to `apart` pixels apart
+    /// along each axis differ by.
+    pub fn ray_rise(&self, apart: f64) -> (f64, f64) {
+        let spread = self.right.y.abs() + self.up.y.abs();
+        let half = self.pixels as f64 / 2.0;
+        (self.dir.y.abs() + spread, apart / half * spread)
+    }
+
     /// The unit vector from `p` towards the camera: `dir` for orthographic views.
     pub fn towards_camera(&self, p: DVec3) -> DVec3 {
         match self.lens {

@@ -25,7 +25,7 @@ pub mod gpu;
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::{depth_images, rasterize, rasterize_eroded, rasterize_within};
+use crate::geom::raster::{depth_image, depth_images, rasterize, rasterize_eroded, rasterize_within};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::Grid;
@@ -121,9 +121,19 @@ impl OpenViews {
         // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
         // openings meanwhile.
         let (sky, eyes) = views.split_at(sky_views);
+        let lowest: Vec<f32> = (0..mesh.triangles.len())
+            .map(|t| mesh.corners(t).iter().map(|p| p.y).fold(f32::INFINITY, f32::min))
+            .collect();
         let (sky_images, eye_images) = rayon::join(
             || depth_images(sky, uncracked.as_ref().unwrap_or(mesh), gpu),
-            || depth_images(eyes, mesh, None),
+            || {
+                eyes.par_iter()
+                    .zip(&horizons)
+                    .map(|(view, &horizon)| {
+                        depth_image(view, &may_hide_counted(mesh, &lowest, (center, radius), view, horizon))
+                    })
+                    .collect::<Vec<_>>()
+            },
         );
         let mut images = sky_images?;
         images.par_iter_mut().zip(sky).for_each(|(image, view)| {
@@ -132,7 +142,7 @@ impl OpenViews {
                 rasterize_eroded(view, &triangle, eroded, |i, d| image[i] = image[i].min(d as f32));
             }
         });
-        images.extend(eye_images?);
+        images.extend(eye_images);
         // One after another, as the GPU takes them.
         let mut depths = vec![0f32; images.len() * PIXELS * PIXELS];
         depths
@@ -469,6 +479,42 @@ impl NearestDepth {
     }
 }
 
+/// The triangles of `mesh` that may hide from `view`, a camera in an opening, a point it counts:
+/// one no higher than `horizon` (the opening's highest point, at least the camera's own height).
+/// `lowest` is each triangle's lowest corner, `sphere` the mesh's bounding sphere. A triangle hides what lies behind it along a ray,
+/// and the 3×3 farthest depths carry its depth to rays up to 1.5 pixels away (a neighbour's
+/// centre, and a point anywhere in the pixel). Behind a triangle's point at depth d, such a ray
+/// is lower than that point by at most the tolerance times the steepest rise, plus d times what
+/// two such rays' rises differ by; a ray that falls there comes from no higher than the camera.
+/// So a triangle whose lowest corner clears the horizon by that much, at its farthest corner's
+/// depth, hides nothing counted. Two pixels' spread and twice the tolerance leave room for
+/// rounding.
+fn may_hide_counted(mesh: &Mesh, lowest: &[f32], sphere: (DVec3, f64), view: &View, horizon: f64) -> Mesh {
+    let (rise, spread) = view.ray_rise(2.0);
+    let clear = horizon + 2.0 * view.depth_tolerance() * rise;
+    // Depth is linear with a unit gradient: no point of the mesh lies deeper.
+    let deepest = view.project(sphere.0).z + sphere.1;
+    let may_hide = |t: usize| {
+        let low = f64::from(lowest[t]);
+        low <= clear
+            || low <= clear + deepest.max(0.0) * spread && {
+                let farthest = mesh
+                    .corners(t)
+                    .iter()
+                    .map(|p| view.project(p.as_dvec3()).z)
+                    .fold(0.0, f64::max);
+                low <= clear + farthest * spread
+            }
+    };
+    Mesh {
+        positions: mesh.positions.clone(),
+        triangles: (0..mesh.triangles.len())
+            .filter(|&t| may_hide(t))
+            .map(|t| mesh.triangles[t])
+            .collect(),
+    }
+}
+
 /// The tiles whose pixel centres may lie in [a, b] along one axis of the screen.
 fn tile_range(a: f64, b: f64) -> std::ops::RangeInclusive<usize> {
     let last = (PIXELS / TILE - 1) as f64;
@@ -738,6 +784,70 @@ mod tests {
             let pixels = (0..TILE).flat_map(|dy| (0..TILE).map(move |dx| (ty * TILE + dy) * n + tx * TILE + dx));
             assert!(pixels.map(|i| depth[i]).any(|d| d == tile), "tile {t}");
         }
+    }
+
+    #[test]
+    fn triangles_left_out_above_an_opening_change_no_answer_below_it() {
+        // Small triangles around a camera at height 0, most of them higher, in a room whose
+        // walls lie at all depths behind them.
+        let mut rng = fastrand::Rng::with_seed(17);
+        let mut mesh = Mesh::default();
+        for k in 0..6000u32 {
+            // Half of them flat and just above the camera, where a pixel's neighbours pass.
+            let (low, high, size) = match k % 2 {
+                0 => (-0.05, 0.3, Vec3::splat(0.06)),
+                _ => (0.0004, 0.008, Vec3::new(0.03, 0.0005, 0.03)),
+            };
+            let centre =
+                Vec3::new(rng.f32() - 0.5, 0.0, rng.f32() - 0.5) * 1.2 + Vec3::Y * (low + rng.f32() * (high - low));
+            mesh.positions
+                .extend((0..3).map(|_| centre + (Vec3::new(rng.f32(), rng.f32(), rng.f32()) - 0.5) * size));
+            mesh.triangles.push([3 * k, 3 * k + 1, 3 * k + 2]);
+        }
+        let room = mesh.positions.len() as u32;
+        mesh.positions
+            .extend((0..8).map(|i| Vec3::new([-2.0, 2.5][i & 1], [-1.5, 2.0][i >> 1 & 1], [-2.5, 2.0][i >> 2 & 1])));
+        for q in BOX_FACES {
+            let q = q.map(|i| room + i as u32);
+            mesh.triangles.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
+        }
+        let lowest: Vec<f32> = (0..mesh.triangles.len())
+            .map(|t| mesh.corners(t).iter().map(|p| p.y).fold(f32::INFINITY, f32::min))
+            .collect();
+        let (eye, horizon) = (DVec3::ZERO, 0.0);
+        let (mut left_out, mut changed) = (0, 0);
+        for view in View::cube_map(eye, PIXELS, 1e-4) {
+            let kept = may_hide_counted(&mesh, &lowest, mesh.bounding_sphere(), &view, horizon);
+            left_out += mesh.triangles.len() - kept.triangles.len();
+            let farthest = |mesh: &Mesh| {
+                let mut out = vec![0f32; PIXELS * PIXELS];
+                farthest_nearby(&depth_image(&view, mesh), PIXELS, &mut out);
+                out
+            };
+            let (all, some) = (farthest(&mesh), farthest(&kept));
+            let tolerance = view.depth_tolerance();
+            for (i, (&before, &after)) in all.iter().zip(&some).enumerate() {
+                if before == after {
+                    continue;
+                }
+                changed += 1;
+                // A point at pixel i's centre is seen at depths below the farthest depth less
+                // the tolerance: what changed is seen at depths from `before` to `after`, and
+                // every such point in front of the camera must lie above the horizon.
+                let near = (f64::from(before) - tolerance).max(tolerance);
+                let height = |depth: f64| view.unproject(i, depth).y;
+                let rises = height(2.0 * near) > height(near);
+                let far_side = match after {
+                    f32::INFINITY => rises,
+                    far => height(f64::from(far) - tolerance) > horizon,
+                };
+                assert!(height(near) > horizon && far_side, "view {:?}, pixel {i}", view.dir);
+            }
+        }
+        assert!(
+            left_out > 5_000 && changed > 1_000,
+            "{left_out} triangles left out, {changed} pixels changed"
+        );
     }
 
     #[test]

@@ -81,25 +81,44 @@ impl View {
     pub fn project(&self, p: DVec3) -> DVec3 {
         let half = self.pixels as f64 / 2.0;
         match self.lens {
-            Lens::Orthographic { center, radius } => {
-                let d = p - center;
-                let scale = half / radius;
-                DVec3::new(
-                    (d.dot(self.right) + radius) * scale,
-                    (d.dot(self.up) + radius) * scale,
-                    radius - d.dot(self.dir),
-                )
-            }
-            Lens::Perspective { eye } => {
-                let d = p - eye;
-                let z = -d.dot(self.dir);
-                DVec3::new(
-                    (d.dot(self.right) / z + 1.0) * half,
-                    (d.dot(self.up) / z + 1.0) * half,
-                    z,
-                )
-            }
+            Lens::Orthographic { center, radius } => self.project_orthographic(p, center, radius, half / radius),
+            Lens::Perspective { eye } => self.project_perspective(p, eye, half),
         }
+    }
+
+    /// [`View::project`] of each point, with the lens's constants worked out once.
+    pub fn project_all(&self, points: impl Iterator<Item = DVec3>) -> Vec<DVec3> {
+        let half = self.pixels as f64 / 2.0;
+        match self.lens {
+            Lens::Orthographic { center, radius } => {
+                let scale = half / radius;
+                points
+                    .map(|p| self.project_orthographic(p, center, radius, scale))
+                    .collect()
+            }
+            Lens::Perspective { eye } => points.map(|p| self.project_perspective(p, eye, half)).collect(),
+        }
+    }
+
+    #[inline(always)]
+    fn project_orthographic(&self, p: DVec3, center: DVec3, radius: f64, scale: f64) -> DVec3 {
+        let d = p - center;
+        DVec3::new(
+            (d.dot(self.right) + radius) * scale,
+            (d.dot(self.up) + radius) * scale,
+            radius - d.dot(self.dir),
+        )
+    }
+
+    #[inline(always)]
+    fn project_perspective(&self, p: DVec3, eye: DVec3, half: f64) -> DVec3 {
+        let d = p - eye;
+        let z = -d.dot(self.dir);
+        DVec3::new(
+            (d.dot(self.right) / z + 1.0) * half,
+            (d.dot(self.up) / z + 1.0) * half,
+            z,
+        )
     }
 
     /// A perspective view's rays as rise (world y) per unit of depth: the most that any ray

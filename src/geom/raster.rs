@@ -420,7 +420,7 @@ pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
 
 /// [`rasterize_mesh`] into any [`Pixels`].
 fn fill_mesh(view: &View, mesh: &Mesh, visit: &mut impl Pixels) {
-    let projected: Vec<DVec3> = mesh.positions.iter().map(|p| view.project(p.as_dvec3())).collect();
+    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
     let all = Span::all(view);
     match view.lens {
         Lens::Orthographic { .. } => {

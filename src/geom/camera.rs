@@ -78,6 +78,7 @@ impl View {
     }
 
     /// Pixel coordinates (x, y) and depth (distance in front of the camera plane).
+    #[inline]
     pub fn project(&self, p: DVec3) -> DVec3 {
         let half = self.pixels as f64 / 2.0;
         match self.lens {

@@ -481,14 +481,15 @@ impl NearestDepth {
 
 /// The triangles of `mesh` that may hide from `view`, a camera in an opening, a point it counts:
 /// one no higher than `horizon` (the opening's highest point, at least the camera's own height).
-/// `lowest` is each triangle's lowest corner, `sphere` the mesh's bounding sphere. A triangle hides what lies behind it along a ray,
-/// and the 3×3 farthest depths carry its depth to rays up to 1.5 pixels away (a neighbour's
-/// centre, and a point anywhere in the pixel). Behind a triangle's point at depth d, such a ray
-/// is lower than that point by at most the tolerance times the steepest rise, plus d times what
-/// two such rays' rises differ by; a ray that falls there comes from no higher than the camera.
-/// So a triangle whose lowest corner clears the horizon by that much, at its farthest corner's
-/// depth, hides nothing counted. Two pixels' spread and twice the tolerance leave room for
-/// rounding.
+/// `lowest` is each triangle's lowest corner, `sphere` the mesh's bounding sphere.
+///
+/// A triangle hides what lies behind it along a ray, and the 3×3 farthest depths carry its depth
+/// to rays up to 1.5 pixels away (a neighbour's centre, and a point anywhere in the pixel).
+/// Behind a triangle's point at depth d, such a ray is lower than that point by at most the
+/// tolerance times the steepest rise, plus d times what two such rays' rises differ by; a ray
+/// that falls there comes from no higher than the camera. So a triangle whose lowest corner
+/// clears the horizon by that much, at its farthest corner's depth, hides nothing counted. Two
+/// pixels' spread and twice the tolerance leave room for rounding.
 fn may_hide_counted(mesh: &Mesh, lowest: &[f32], sphere: (DVec3, f64), view: &View, horizon: f64) -> Mesh {
     let (rise, spread) = view.ray_rise(2.0);
     let clear = horizon + 2.0 * view.depth_tolerance() * rise;

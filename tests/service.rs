@@ -265,6 +265,16 @@ fn slow_mesh() -> Vec<u8> {
     obj_text(&mesh)
 }
 
+/// Posts [`slow_mesh`] to `base`'s cook endpoint at [`SLOW`]; the reply's JSON.
+fn post_slow_cook(base: &str) -> Value {
+    post(
+        &format!("{base}/v1/cook?resolution={SLOW}"),
+        Some("model/obj"),
+        &slow_mesh(),
+    )
+    .json()
+}
+
 #[test]
 fn kill_9_then_restart_loses_no_job_and_no_result() {
     let dir = data_dir("kill");
@@ -274,13 +284,7 @@ fn kill_9_then_restart_loses_no_job_and_no_result() {
     let quick_job = quick["job"].as_str().unwrap().to_string();
     wait_for(&base, &quick_job, Duration::from_secs(60));
     // A slow job and one queued behind it.
-    let slow_mesh = slow_mesh();
-    let slow = post(
-        &format!("{base}/v1/cook?resolution={SLOW}"),
-        Some("model/obj"),
-        &slow_mesh,
-    )
-    .json();
+    let slow = post_slow_cook(&base);
     let behind = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(2)).json();
     let start = Instant::now();
     while get(&format!("{base}/v1/jobs/{}", slow["job"].as_str().unwrap()), &[]).json()["state"] != "running" {
@@ -617,13 +621,7 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
         ],
     );
     let base = &server.base;
-    let slow_mesh = slow_mesh();
-    let slow = post(
-        &format!("{base}/v1/cook?resolution={SLOW}"),
-        Some("model/obj"),
-        &slow_mesh,
-    )
-    .json();
+    let slow = post_slow_cook(base);
     let timed_out = wait_for(base, slow["job"].as_str().unwrap(), Duration::from_secs(120));
     assert_eq!(timed_out["error"]["code"], "timeout", "{timed_out}");
     let quick = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(20)).json();
@@ -644,12 +642,7 @@ fn jobs_time_out_and_cancel_and_the_worker_goes_on() {
     let server = Server::start(&dir, &["service.workers=1", "service.max_resolution=512"]);
     let base = &server.base;
     let delete = |job: &str| reply(agent().delete(&format!("{base}/v1/jobs/{job}")).call());
-    let running = post(
-        &format!("{base}/v1/cook?resolution={SLOW}"),
-        Some("model/obj"),
-        &slow_mesh,
-    )
-    .json();
+    let running = post_slow_cook(base);
     let running = running["job"].as_str().unwrap().to_string();
     let queued = post(&format!("{base}/v1/cook"), Some("model/obj"), &small_mesh(21)).json();
     let queued_key = queued["key"].clone();

@@ -121,9 +121,7 @@ impl OpenViews {
         // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
         // openings meanwhile.
         let (sky, eyes) = views.split_at(sky_views);
-        let lowest: Vec<f32> = (0..mesh.triangles.len())
-            .map(|t| mesh.corners(t).iter().map(|p| p.y).fold(f32::INFINITY, f32::min))
-            .collect();
+        let lowest = lowest_corners(mesh);
         let (sky_images, eye_images) = rayon::join(
             || depth_images(sky, uncracked.as_ref().unwrap_or(mesh), gpu),
             || {
@@ -479,6 +477,13 @@ impl NearestDepth {
     }
 }
 
+/// Each triangle's lowest corner's height, as [`may_hide_counted`] takes them.
+fn lowest_corners(mesh: &Mesh) -> Vec<f32> {
+    (0..mesh.triangles.len())
+        .map(|t| mesh.corners(t).iter().map(|p| p.y).fold(f32::INFINITY, f32::min))
+        .collect()
+}
+
 /// The triangles of `mesh` that may hide from `view`, a camera in an opening, a point it counts:
 /// one no higher than `horizon` (the opening's highest point, at least the camera's own height).
 /// `lowest` is each triangle's lowest corner, `sphere` the mesh's bounding sphere.
@@ -812,9 +817,7 @@ mod tests {
             let q = q.map(|i| room + i as u32);
             mesh.triangles.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
         }
-        let lowest: Vec<f32> = (0..mesh.triangles.len())
-            .map(|t| mesh.corners(t).iter().map(|p| p.y).fold(f32::INFINITY, f32::min))
-            .collect();
+        let lowest = lowest_corners(&mesh);
         let (eye, horizon) = (DVec3::ZERO, 0.0);
         let (mut left_out, mut changed) = (0, 0);
         for view in View::cube_map(eye, PIXELS, 1e-4) {

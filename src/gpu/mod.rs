@@ -10,6 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
+mod precise;
 mod timer;
 
 /// Where the GPU stages run.
@@ -143,7 +144,7 @@ fn open() -> Result<Gpu, GpuError> {
     };
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("occluder-cook"),
-        required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
+        required_features: adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::PASSTHROUGH_SHADERS),
         required_limits: limits.clone(),
         ..Default::default()
     }))
@@ -472,13 +473,19 @@ impl Gpu {
         cache
             .entry((source.as_ptr() as usize, entry))
             .or_insert_with(|| {
-                let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(entry),
-                    source: wgpu::ShaderSource::Wgsl(source.into()),
-                });
+                let (module, layout) = match self.precise_module(source, entry) {
+                    Some((module, layout)) => (module, Some(layout)),
+                    None => (
+                        self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                            label: Some(entry),
+                            source: wgpu::ShaderSource::Wgsl(source.into()),
+                        }),
+                        None,
+                    ),
+                };
                 self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some(entry),
-                    layout: None,
+                    layout: layout.as_ref(),
                     module: &module,
                     entry_point: Some(entry),
                     compilation_options: Default::default(),
@@ -486,6 +493,43 @@ impl Gpu {
                 })
             })
             .clone()
+    }
+
+    /// `entry` of `source` as SPIR-V with no contracted float arithmetic ([`precise`]), and
+    /// the layout of what it binds; `None` where the device takes no SPIR-V (not Vulkan), and
+    /// then the WGSL goes to wgpu as it is.
+    fn precise_module(&self, source: &str, entry: &str) -> Option<(wgpu::ShaderModule, wgpu::PipelineLayout)> {
+        if !self.device.features().contains(wgpu::Features::PASSTHROUGH_SHADERS) {
+            return None;
+        }
+        let compiled = precise::PreciseEntry::compile(source, entry)
+            .inspect_err(|e| tracing::warn!(entry, error = e, "shader kept as WGSL: naga refused it"))
+            .ok()??;
+        // Safety: the words are naga's own output for a module it validated, with only
+        // NoContraction decorations added and wgpu's bounds checks, for this layout.
+        let module = unsafe {
+            self.device
+                .create_shader_module_passthrough(wgpu::ShaderModuleDescriptorPassthrough {
+                    label: Some(entry),
+                    entry_points: vec![wgpu::PassthroughShaderEntryPoint {
+                        name: entry.to_owned().into(),
+                        workgroup_size: compiled.workgroup_size.into(),
+                    }]
+                    .into(),
+                    spirv: Some(compiled.words.into()),
+                    ..Default::default()
+                })
+        };
+        let group = self.device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some(entry),
+            entries: &compiled.bindings,
+        });
+        let layout = self.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(entry),
+            bind_group_layouts: &[Some(&group)],
+            immediate_size: 0,
+        });
+        Some((module, layout))
     }
 
     /// Dispatches `groups` workgroups of `entry` in `source`, with `buffers` at their bindings of

@@ -127,9 +127,45 @@ fn column_hit(v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, p: vec2<f32>) -> vec3
     let total = w0.x + w1.x + w2.x;
     var z = v0.z;
     if total != 0.0 {
-        z = (w0.x * v0.z + w1.x * v1.z + w2.x * v2.z) / total;
+        z = divide(w0.x * v0.z + w1.x * v1.z + w2.x * v2.z, total);
     }
     return vec3<f32>(1.0, z, s);
+}
+
+// a / b rounded to nearest, as the CPU twin divides: a driver's f32 division may be an ulp off
+// (NVIDIA's is), so the quotient and its two neighbours are weighed by their exact remainders,
+// ties to even.
+fn divide(a: f32, b: f32) -> f32 {
+    let q = a / b;
+    var best = q;
+    var least = abs(remainder(a, b, q));
+    for (var i = 0u; i < 2u; i++) {
+        let c = bitcast<f32>(select(bitcast<u32>(q) + 1u, bitcast<u32>(q) - 1u, i == 1u));
+        let r = abs(remainder(a, b, c));
+        if r < least || (r == least && (bitcast<u32>(c) & 1u) == 0u) {
+            best = c;
+            least = r;
+        }
+    }
+    return best;
+}
+
+// a - c * b exactly, for c within a few ulps of a / b: Dekker's product, whose every operation
+// must round on its own (the NoContraction the host compiles in).
+fn remainder(a: f32, b: f32, c: f32) -> f32 {
+    let p = c * b;
+    let cs = halves(c);
+    let bs = halves(b);
+    let e = ((cs.x * bs.x - p) + cs.x * bs.y + cs.y * bs.x) + cs.y * bs.y;
+    return (a - p) - e;
+}
+
+// x as its upper 12 significant bits and the rest (Veltkamp), so that products of halves are
+// exact.
+fn halves(x: f32) -> vec2<f32> {
+    let t = 4097.0 * x;
+    let high = t - (t - x);
+    return vec2<f32>(high, x - high);
 }
 
 // How many voxel centres of a column lie below height z (k + 0.5 < z).

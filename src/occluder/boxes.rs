@@ -143,18 +143,25 @@ impl SummedVolume {
     fn new(set: &[bool], dims: [usize; 3]) -> Self {
         let [sx, sy, sz] = dims.map(|d| d + 1);
         let mut sums = vec![0u32; sx * sy * sz];
-        let at = |x: usize, y: usize, z: usize| (x * sy + y) * sz + z;
-        for x in 1..sx {
+        // Running sums along z, then y, then x: integers, so the same counts as summing each
+        // box, and each slab of x is summed along z and y on its own.
+        sums.par_chunks_mut(sy * sz).skip(1).enumerate().for_each(|(x, slab)| {
             for y in 1..sy {
+                let voxels = &set[(x * dims[1] + y - 1) * dims[2]..][..dims[2]];
+                let (above, row) = slab.split_at_mut(y * sz);
+                let (above, row) = (&above[(y - 1) * sz..], &mut row[..sz]);
                 for z in 1..sz {
-                    let v = u32::from(set[((x - 1) * dims[1] + y - 1) * dims[2] + z - 1]);
-                    sums[at(x, y, z)] = v + sums[at(x - 1, y, z)] + sums[at(x, y - 1, z)] + sums[at(x, y, z - 1)]
-                        - sums[at(x - 1, y - 1, z)]
-                        - sums[at(x - 1, y, z - 1)]
-                        - sums[at(x, y - 1, z - 1)]
-                        + sums[at(x - 1, y - 1, z - 1)];
+                    row[z] = row[z - 1] + u32::from(voxels[z - 1]);
+                }
+                for (r, a) in row.iter_mut().zip(above) {
+                    *r += a;
                 }
             }
+        });
+        for x in 1..sx {
+            let (before, slab) = sums.split_at_mut(x * sy * sz);
+            let previous = &before[(x - 1) * sy * sz..];
+            slab[..sy * sz].iter_mut().zip(previous).for_each(|(s, p)| *s += p);
         }
         SummedVolume { sums, dims }
     }

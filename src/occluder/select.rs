@@ -8,7 +8,7 @@ use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::raster::{coverage_mask, draw_coverage};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
-use std::cmp::Ordering;
+use std::cmp::{Ordering, Reverse};
 use std::collections::{BinaryHeap, HashMap};
 
 /// Views and pixels of the selection's silhouettes: coarser than `eval`'s, enough to rank boxes.
@@ -221,21 +221,21 @@ impl State<'_> {
                 candidate: i,
             })
             .collect();
+        // Untaken boxes by their bound: their gain when last weighed.
+        let mut box_queue: BinaryHeap<(u64, Reverse<usize>)> = (0..first_sheet)
+            .filter(|&i| !taken[i])
+            .map(|i| (self.gain(&covered, i), Reverse(i)))
+            .collect();
         // The chosen boxes' solid with each box merged in.
         let mut with_box: HashMap<usize, Mesh> = HashMap::new();
         loop {
             let used = self.triangles();
             let best_sheet = self.best_sheet(&mut queue, &taken, &covered, used);
-            let mut ranked_boxes: Vec<(usize, u64)> = (0..first_sheet)
-                .filter(|&i| !taken[i])
-                .map(|i| (i, self.gain(&covered, i)))
-                .filter(|&(_, g)| g as f64 >= self.threshold)
-                .collect();
-            ranked_boxes.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
             // The merge decides what a box really costs: touching boxes share faces, and
             // T-junctions add vertices; price the best few by merging them in. A merge holds
             // until the chosen boxes change.
-            let lookahead = &ranked_boxes[..ranked_boxes.len().min(LOOKAHEAD)];
+            let lookahead = self.best_boxes(&mut box_queue, &taken, &covered);
+            let lookahead = lookahead.as_slice();
             let unpriced: Vec<usize> = lookahead
                 .iter()
                 .map(|&(i, _)| i)
@@ -268,6 +268,38 @@ impl State<'_> {
                 with_box.clear();
             }
         }
+    }
+
+    /// The untaken boxes with the most new pixels, ties to the lower index, best first: at most
+    /// `LOOKAHEAD`, each adding enough. As with sheets, boxes are weighed in order of their
+    /// bound in `queue` only until `LOOKAHEAD` weighed ones lead every bound left; a box that
+    /// adds too few never adds enough again in this fill, and leaves the queue.
+    fn best_boxes(
+        &self,
+        queue: &mut BinaryHeap<(u64, Reverse<usize>)>,
+        taken: &[bool],
+        covered: &[u64],
+    ) -> Vec<(usize, u64)> {
+        // Weighed boxes as (gain, index) keys, best first.
+        let mut weighed: Vec<(u64, Reverse<usize>)> = Vec::new();
+        while let Some(&bound) = queue.peek() {
+            if weighed.get(LOOKAHEAD - 1).is_some_and(|&last| bound < last) {
+                break;
+            }
+            queue.pop();
+            let i = bound.1.0;
+            if taken[i] {
+                continue;
+            }
+            let key = (self.gain(covered, i), Reverse(i));
+            if key.0 as f64 >= self.threshold {
+                let at = weighed.partition_point(|&k| k > key);
+                weighed.insert(at, key);
+            }
+        }
+        queue.extend(weighed.iter().copied());
+        weighed.truncate(LOOKAHEAD);
+        weighed.into_iter().map(|(gain, Reverse(i))| (i, gain)).collect()
     }
 
     /// Silhouette pixels that candidate `i` covers and `covered` does not.
@@ -355,5 +387,71 @@ impl State<'_> {
         });
         self.solid = self.merged_with(None);
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_boxes_weighed_lazily_are_those_that_weighing_all_ranks_first() {
+        let mut rng = fastrand::Rng::with_seed(11);
+        let (words, mut steps) = (40, 0);
+        for _ in 0..50 {
+            let count = rng.usize(1..60);
+            // Overlapping masks, many with equal gains, so that ties to the lower index count.
+            let masks: Vec<SparseMask> = (0..count)
+                .map(|_| {
+                    let first = rng.usize(0..words);
+                    (first..words.min(first + rng.usize(1..12)))
+                        .map(|w| (w as u32, [u64::MAX, 0xff, rng.u64(..)][rng.usize(0..3)]))
+                        .collect()
+                })
+                .collect();
+            let boxes = vec![
+                WorldBox {
+                    lo: [0.0; 3],
+                    hi: [1.0; 3]
+                };
+                count
+            ];
+            let costs = vec![12; count];
+            let state = State {
+                boxes: &boxes,
+                masks: &masks,
+                costs: &costs,
+                words,
+                threshold: rng.usize(1..40) as f64,
+                max_triangles: 256,
+                chosen: Vec::new(),
+                solid: Mesh::default(),
+            };
+            let mut covered = vec![0u64; words];
+            let mut taken = vec![false; count];
+            let mut queue: BinaryHeap<(u64, Reverse<usize>)> =
+                (0..count).map(|i| (state.gain(&covered, i), Reverse(i))).collect();
+            loop {
+                let lazy = state.best_boxes(&mut queue, &taken, &covered);
+                let mut all: Vec<(usize, u64)> = (0..count)
+                    .filter(|&i| !taken[i])
+                    .map(|i| (i, state.gain(&covered, i)))
+                    .filter(|&(_, g)| g as f64 >= state.threshold)
+                    .collect();
+                all.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+                all.truncate(LOOKAHEAD);
+                assert_eq!(lazy, all);
+                // Take one of them, as the selection might, and cover its pixels.
+                let Some(&(i, _)) = lazy.get(rng.usize(0..lazy.len().max(1))) else {
+                    break;
+                };
+                taken[i] = true;
+                steps += 1;
+                for &(w, bits) in &masks[i] {
+                    covered[w as usize] |= bits;
+                }
+            }
+        }
+        assert!(steps > 300, "{steps} boxes taken");
     }
 }

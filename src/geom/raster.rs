@@ -71,6 +71,14 @@ trait Pixels {
     /// Whether it takes runs, without depths: every run's end is then found by bisection.
     const RUNS: bool;
     fn pixel(&mut self, index: usize, depth: f64);
+    /// [`Pixels::pixel`] where `drawn`, for a pixel tested alone: a sink that can take it
+    /// without a branch (which no predictor guesses well on small triangles) does.
+    #[inline(always)]
+    fn pixel_where(&mut self, drawn: bool, index: usize, depth: impl FnOnce() -> f64) {
+        if drawn {
+            self.pixel(index, depth());
+        }
+    }
     /// Pixels `xs` of the row that starts at pixel index `row`.
     fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>);
 }
@@ -104,6 +112,14 @@ impl Pixels for Bits<'_> {
 
     fn pixel(&mut self, index: usize, _: f64) {
         self.run(index, 0..=0);
+    }
+
+    #[inline(always)]
+    fn pixel_where(&mut self, drawn: bool, index: usize, _: impl FnOnce() -> f64) {
+        let word = index / 64;
+        self.mask[word] |= u64::from(drawn) << (index % 64);
+        let (first, end) = (self.first.min(word), self.end.max(word + 1));
+        (self.first, self.end) = if drawn { (first, end) } else { (self.first, self.end) };
     }
 
     fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>) {
@@ -337,7 +353,25 @@ impl Rows {
             move |k: usize, x: usize| rows[k] - edges[k].0.y * ((index_to_f64(x) + 0.5) - edges[k].1.x)
         };
         let (x0, x1) = span.x;
-        if !V::RUNS && (x1 - x0 + 1) * (span.y.1 - span.y.0 + 1) <= SMALL {
+        let (y0, y1) = span.y;
+        if x1 - x0 <= 1 && y1 - y0 <= 1 {
+            // At most 2 × 2 pixels, as for most triangles of a detailed mesh: all four tested
+            // the same way, those past the span drawn nowhere, so that nothing branches on the
+            // size.
+            for dy in 0..2 {
+                let y = (y0 + dy).min(y1);
+                let function = in_row(rows(y));
+                for dx in 0..2 {
+                    let x = (x0 + dx).min(x1);
+                    let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
+                    let within = x0 + dx <= x1 && y0 + dy <= y1;
+                    let drawn = within & holds(0, f[0]) & holds(1, f[1]) & holds(2, f[2]);
+                    visit.pixel_where(drawn, y * view.pixels + x, || depth_at(f));
+                }
+            }
+            return;
+        }
+        if !V::RUNS && (x1 - x0 + 1) * (y1 - y0 + 1) <= SMALL {
             // Few pixels: each tested alone, with the same operations.
             for y in span.y.0..=span.y.1 {
                 let function = in_row(rows(y));

@@ -18,11 +18,11 @@ pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
     let triangles = grid.local_triangles(mesh);
     let [nx, ny, nz] = grid.dims;
     let half = 0.5 + SLACK;
-    let mut hits: Vec<usize> = triangles
+    // Each thread's hits in one list, set in any order.
+    let hits: Vec<Vec<usize>> = triangles
         .par_iter()
-        .flat_map_iter(|tri| {
+        .fold(Vec::new, |mut out, tri| {
             let [xs, ys, zs] = Grid::local_spans(tri, [nx, ny, nz]);
-            let mut out = Vec::new();
             for x in xs {
                 for y in ys.clone() {
                     for z in zs.clone() {
@@ -36,9 +36,8 @@ pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
             out
         })
         .collect();
-    hits.par_sort_unstable();
     let mut voxels = vec![false; grid.len()];
-    for v in hits {
+    for &v in hits.iter().flatten() {
         voxels[v] = true;
     }
     voxels

@@ -391,12 +391,17 @@ impl Rows {
         // or a long row, else as the pixels are drawn (most runs of a detailed mesh are a pixel
         // or two long).
         let rising = edges.map(|(e, _)| e.y * area < 0.0);
+        let slopes = (x1 - x0 >= WIDE).then(|| edges.map(|(e, _)| 1.0 / e.y));
         for y in span.y.0..=span.y.1 {
-            let function = in_row(rows(y));
-            let first = first_where(x0, x1 + 1, |x| (0..3).all(|k| !rising[k] || holds(k, function(k, x))));
+            let row = rows(y);
+            let function = in_row(row);
+            let (starts, ends) = run_guesses(&edges, row, rising, slopes);
+            let first = first_where_near(x0, x1 + 1, starts, |x| {
+                (0..3).all(|k| !rising[k] || holds(k, function(k, x)))
+            });
             let ends_after = |x| (0..3).any(|k| !rising[k] && !holds(k, function(k, x)));
             if V::RUNS {
-                let end = first_where(first, x1 + 1, ends_after);
+                let end = first_where_near(first, x1 + 1, ends, ends_after);
                 if first < end {
                     visit.run(y * view.pixels, first..=end - 1);
                 }
@@ -405,7 +410,7 @@ impl Rows {
             let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
             if x1 + 1 - first >= LONG_ROW {
                 // A long row's end is bisected too, and its pixels drawn without tests.
-                for x in first..first_where(first, x1 + 1, ends_after) {
+                for x in first..first_where_near(first, x1 + 1, ends, ends_after) {
                     visit.pixel(y * view.pixels + x, depth_at(at(x)));
                 }
                 continue;
@@ -426,6 +431,71 @@ const SMALL: usize = 4;
 
 /// Pixels left in a row from which a depth image's run ends by bisection.
 const LONG_ROW: usize = 8;
+
+/// Candidate pixels from which a row's searches start from where its edges cross it.
+const WIDE: usize = 8;
+
+/// Where a row's run of pixels may start and end (one past it): where each edge's function
+/// crosses 0 along the row, `o.x - 0.5 + row / e.y`, near enough to start the searches from, as
+/// they check every guess with the functions themselves. No guess (NaN) without the edges'
+/// `slopes` (1 / e.y), which only a wide triangle pays for.
+fn run_guesses(edges: &[(DVec2, DVec2); 3], row: [f64; 3], rising: [bool; 3], slopes: Option<[f64; 3]>) -> (f64, f64) {
+    let Some(slopes) = slopes else {
+        return (f64::NAN, f64::NAN);
+    };
+    let (mut starts, mut ends) = (f64::NEG_INFINITY, f64::INFINITY);
+    for (k, &rises) in rising.iter().enumerate() {
+        let crossing = edges[k].1.x - 0.5 + row[k] * slopes[k];
+        if rises {
+            starts = starts.max(crossing);
+        } else {
+            ends = ends.min(crossing);
+        }
+    }
+    (starts.ceil(), ends.floor() + 1.0)
+}
+
+/// [`first_where`], searched outwards from `guess`, the step doubling, then bisected: the same
+/// answer for any guess, in a few tests when it is near. With no guess (NaN), plain bisection.
+fn first_where_near(from: usize, to: usize, guess: f64, test: impl Fn(usize) -> bool) -> usize {
+    if guess.is_nan() {
+        return first_where(from, to, test);
+    }
+    // Past `to` counts as holding, as `first_where` answers `to` where nothing holds.
+    let holds = |x: usize| x >= to || test(x);
+    let start = if guess >= index_to_f64(to) {
+        to
+    } else {
+        floor_index(guess).max(from)
+    };
+    let mut step = 1;
+    if holds(start) {
+        let mut held = start;
+        loop {
+            if held - from <= step {
+                return first_where(from, held, &test);
+            }
+            let probe = held - step;
+            if !holds(probe) {
+                return first_where(probe + 1, held, &test);
+            }
+            held = probe;
+            step *= 2;
+        }
+    }
+    let mut failed = start;
+    loop {
+        let probe = failed + step;
+        if probe >= to {
+            return first_where(failed + 1, to, &test);
+        }
+        if holds(probe) {
+            return first_where(failed + 1, probe, &test);
+        }
+        failed = probe;
+        step *= 2;
+    }
+}
 
 /// The first x in [from, to) where `test` holds, or `to`, for a test that once it holds, holds
 /// on.
@@ -581,6 +651,29 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn a_search_from_any_guess_finds_what_bisection_finds() {
+        let mut rng = fastrand::Rng::with_seed(23);
+        for _ in 0..20_000 {
+            let from = rng.usize(0..300);
+            let to = from + rng.usize(0..300);
+            let threshold = rng.usize(from.saturating_sub(5)..to + 5);
+            let guess = match rng.usize(0..6) {
+                0 => f64::NAN,
+                1 => f64::INFINITY,
+                2 => f64::NEG_INFINITY,
+                3 => threshold as f64 + rng.f64() * 4.0 - 2.0,
+                _ => rng.f64() * 700.0 - 50.0,
+            };
+            let test = |x: usize| x >= threshold;
+            assert_eq!(
+                first_where_near(from, to, guess, test),
+                first_where(from, to, test),
+                "[{from}, {to}) from {guess}, holding from {threshold}"
+            );
+        }
     }
 
     #[test]

@@ -12,18 +12,6 @@ use occluder_cook::mesh::{IngestLimits, Mesh, load_file, topology::orient_closed
 use occluder_cook::occluder::exposure::OpenViews;
 use occluder_cook::voxel::bricks::BrickGrid;
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
-use std::sync::Arc;
-
-fn device() -> Option<Arc<Gpu>> {
-    match gpu::device() {
-        Ok(gpu) => Some(gpu),
-        Err(GpuError::NoAdapter) if std::env::var_os("CI").is_none() => {
-            eprintln!("no GPU adapter (install mesa-vulkan-drivers for lavapipe); skipping the GPU twins");
-            None
-        }
-        Err(e) => panic!("CI installs lavapipe, so a GPU adapter must exist: {e}"),
-    }
-}
 
 fn differ(a: &[bool], b: &[bool]) -> usize {
     a.iter().zip(b).filter(|(x, y)| x != y).count()
@@ -68,7 +56,7 @@ fn compare(gpu: &Gpu, name: &str, mut mesh: Mesh, resolution: usize) -> usize {
 
 #[test]
 fn gpu_stages_match_their_cpu_twins_on_synthetic_shapes() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let shapes = [
         ("torus", torus(1.0, 0.4, 32, 16)),
         ("open box", cuboid(Vec3::splat(-1.0), Vec3::new(1.0, 2.0, 1.0), &[3])),
@@ -93,7 +81,7 @@ fn gpu_stages_match_their_cpu_twins_on_synthetic_shapes() {
 
 #[test]
 fn winding_reads_open_edges_past_its_uniform_buffer_from_storage() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     // 1100 small separate triangles below a box open at +z: their 3300 open edges come first
     // and fill the 2048 the shader holds in its uniform buffer, so the box's own open edges,
     // without which none of its voxels counts as inside, are read from storage.
@@ -113,7 +101,7 @@ fn winding_reads_open_edges_past_its_uniform_buffer_from_storage() {
 
 #[test]
 fn gpu_stages_match_their_cpu_twins_on_corpus_meshes() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let Some(dir) = common::corpus() else { return };
     let mut largest = (0, String::new());
     for name in [
@@ -136,7 +124,7 @@ fn gpu_stages_match_their_cpu_twins_on_corpus_meshes() {
 
 #[test]
 fn a_triangle_spanning_the_grid_is_split_under_the_drivers_loop_limit() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     // llvmpipe stops an invocation's loops after 65535 iterations: this triangle's bounds hold
     // 4 million voxels, so it only comes out whole if the host splits it into work items.
     let mesh = Mesh {
@@ -155,7 +143,7 @@ fn a_triangle_spanning_the_grid_is_split_under_the_drivers_loop_limit() {
 
 #[test]
 fn a_mesh_with_too_many_open_edges_for_one_thread_classifies_on_the_cpu_and_says_so() {
-    if device().is_none() {
+    if gpu::device_for_tests().is_none() {
         return;
     }
     // 2000 separate triangles: 6000 boundary edges.
@@ -189,7 +177,7 @@ fn a_mesh_with_too_many_open_edges_for_one_thread_classifies_on_the_cpu_and_says
 
 #[test]
 fn grids_larger_than_a_binding_are_done_in_slabs() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     // 64 KiB bindings: a 96³ grid of i32 sums needs many slabs, and the triangles several chunks.
     let small = gpu.with_max_binding(64 * 1024);
     let mut mesh = torus(1.0, 0.4, 96, 48);
@@ -255,7 +243,7 @@ fn device_gpu_without_an_adapter_fails_clearly_and_auto_falls_back_to_the_cpu() 
 
 #[test]
 fn gpu_depth_images_match_the_cpu_rasterizer() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let mut meshes = vec![("torus".to_string(), torus(1.0, 0.4, 48, 24))];
     if let Some(dir) = common::corpus() {
         for name in ["bunny-holes.obj", "kenney-building-small-a.glb"] {
@@ -310,7 +298,7 @@ fn cook_on(device: &str, mesh: Mesh) -> occluder_cook::cook::Cooked {
 
 #[test]
 fn a_cook_on_the_gpu_gives_the_cpu_occluder_with_no_false_pixels() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let timestamps = gpu.device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
     for (name, mesh) in [
         ("torus", torus(1.0, 0.45, 48, 24)),
@@ -346,7 +334,7 @@ fn a_cook_on_the_gpu_gives_the_cpu_occluder_with_no_false_pixels() {
 /// and expect the CPU path's occluder and no false pixel from any view not below the mesh.
 #[test]
 fn corpus_meshes_cooked_on_the_gpu_match_the_cpu_path() {
-    if device().is_none() {
+    if gpu::device_for_tests().is_none() {
         return;
     }
     let Some(dir) = common::corpus() else { return };
@@ -378,7 +366,7 @@ fn corpus_meshes_cooked_on_the_gpu_match_the_cpu_path() {
 
 #[test]
 fn a_stage_that_cannot_fit_the_device_fails_that_call_alone() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let mesh = torus(1.0, 0.4, 24, 12);
     let (lo, hi) = mesh.bounds();
     let grid = Grid::fit(lo, hi, 48);
@@ -394,7 +382,7 @@ fn a_stage_that_cannot_fit_the_device_fails_that_call_alone() {
 
 #[test]
 fn the_eval_on_the_gpu_counts_the_false_pixels_of_a_wrong_occluder_as_the_cpu_does() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let original = torus(1.0, 0.4, 48, 24);
     // A slab through the hole and out past the rim: wrong in most views.
     let wrong = cuboid(Vec3::new(-1.6, -0.1, -1.6), Vec3::new(1.6, 0.1, 1.6), &[]);
@@ -419,7 +407,7 @@ fn the_eval_on_the_gpu_counts_the_false_pixels_of_a_wrong_occluder_as_the_cpu_do
 
 #[test]
 fn cpsv_on_the_gpu_matches_its_cpu_twin() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let mut meshes = vec![
         ("torus".to_string(), torus(1.0, 0.4, 48, 24), 32),
         (
@@ -458,7 +446,7 @@ fn cpsv_on_the_gpu_matches_its_cpu_twin() {
 
 #[test]
 fn exposed_voxels_on_the_gpu_match_their_cpu_twin() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let mut meshes = vec![(
         "open box".to_string(),
         cuboid(Vec3::splat(-1.0), Vec3::new(1.0, 2.0, 1.0), &[3]),
@@ -503,7 +491,7 @@ fn brick_voxels(grid: &BrickGrid) -> Vec<(IVec3, u8)> {
 
 #[test]
 fn bricks_on_the_gpu_match_their_cpu_twin() {
-    let Some(gpu) = device() else { return };
+    let Some(gpu) = gpu::device_for_tests() else { return };
     let slanted = Mesh {
         positions: vec![
             Vec3::new(0.3, 0.2, 0.1),

@@ -52,7 +52,7 @@ pub struct Gpu {
     /// The largest storage buffer one binding may hold (lavapipe: 128 MiB).
     pub max_binding: u64,
     lost: Arc<AtomicBool>,
-    pipelines: Arc<Mutex<HashMap<(usize, &'static str), wgpu::ComputePipeline>>>,
+    pipelines: Arc<Mutex<Pipelines>>,
     /// Times the passes recorded through this handle ([`Gpu::timed`]).
     timer: Option<Arc<timer::PassTimer>>,
 }
@@ -68,6 +68,22 @@ pub fn device() -> Result<Arc<Gpu>, GpuError> {
     let gpu = Arc::new(open()?);
     *slot = Some(gpu.clone());
     Ok(gpu)
+}
+
+/// Compute pipelines by the address of their source and their entry point, each with its source.
+type Pipelines = HashMap<(usize, &'static str), (&'static str, wgpu::ComputePipeline)>;
+
+/// The device for a test of the GPU stages, or `None` (the test skips, and says so) where no
+/// adapter exists outside CI: CI installs lavapipe, so there one must.
+pub fn device_for_tests() -> Option<Arc<Gpu>> {
+    match device() {
+        Ok(gpu) => Some(gpu),
+        Err(GpuError::NoAdapter) if std::env::var_os("CI").is_none() => {
+            eprintln!("no GPU adapter (install mesa-vulkan-drivers for lavapipe); skipping the GPU test");
+            None
+        }
+        Err(e) => panic!("CI installs lavapipe, so a GPU adapter must exist: {e}"),
+    }
 }
 
 /// Where the stages run for `choice`: the device, or `None` for the CPU with the reason when
@@ -470,29 +486,41 @@ impl Gpu {
 
     fn pipeline(&self, source: &'static str, entry: &'static str) -> wgpu::ComputePipeline {
         let mut cache = self.pipelines.lock().unwrap_or_else(|e| e.into_inner());
-        cache
-            .entry((source.as_ptr() as usize, entry))
-            .or_insert_with(|| {
-                let (module, layout) = match self.precise_module(source, entry) {
-                    Some((module, layout)) => (module, Some(layout)),
-                    None => (
-                        self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                            label: Some(entry),
-                            source: wgpu::ShaderSource::Wgsl(source.into()),
-                        }),
-                        None,
-                    ),
-                };
-                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        let key = (source.as_ptr() as usize, entry);
+        if let Some((_, pipeline)) = cache.get(&key) {
+            return pipeline.clone();
+        }
+        // A `const` source is copied where it is used, so the pipelines built ahead and those a
+        // stage asks for can name one text at two addresses: the text decides, once an address
+        // misses.
+        let built = cache
+            .iter()
+            .find(|((_, e), (text, _))| *e == entry && *text == source)
+            .map(|(_, (_, pipeline))| pipeline.clone());
+        let pipeline = built.unwrap_or_else(|| self.build_pipeline(source, entry));
+        cache.insert(key, (source, pipeline.clone()));
+        pipeline
+    }
+
+    fn build_pipeline(&self, source: &'static str, entry: &'static str) -> wgpu::ComputePipeline {
+        let (module, layout) = match self.precise_module(source, entry) {
+            Some((module, layout)) => (module, Some(layout)),
+            None => (
+                self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some(entry),
-                    layout: layout.as_ref(),
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-            })
-            .clone()
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                }),
+                None,
+            ),
+        };
+        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: layout.as_ref(),
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        })
     }
 
     /// `entry` of `source` as SPIR-V with no contracted float arithmetic ([`precise`]), and
@@ -637,5 +665,27 @@ impl Gpu {
         drop(view);
         staging.unmap();
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_shader_text_at_two_addresses_is_built_once() {
+        let Some(gpu) = device_for_tests() else {
+            return;
+        };
+        let source: &'static str = "@group(0) @binding(0) var<storage, read_write> out: array<u32>;
+            @compute @workgroup_size(1) fn one_text() { out[0] = 1u; }";
+        let copy: &'static str = String::from(source).leak();
+        assert_ne!(source.as_ptr(), copy.as_ptr());
+        let built = gpu.pipeline(source, "one_text");
+        assert!(
+            gpu.pipeline(copy, "one_text") == built,
+            "the copy's text was built again"
+        );
+        assert!(gpu.pipeline(source, "one_text") == built);
     }
 }

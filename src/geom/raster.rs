@@ -68,7 +68,7 @@ fn rasterize_with(view: &View, tri: &[DVec3; 3], coverage: Coverage, within: Spa
 /// Where a fill's pixels go: one by one with their depths, or, for a sink that reads no
 /// depths, as whole runs along a row.
 trait Pixels {
-    /// Whether it takes runs, without depths: every run's end is then found by bisection.
+    /// Whether it takes runs, without depths: every run's end is then searched for.
     const RUNS: bool;
     fn pixel(&mut self, index: usize, depth: f64);
     /// [`Pixels::pixel`] where `drawn`, for a pixel tested alone: a sink that can take it
@@ -386,10 +386,11 @@ impl Rows {
         }
         // Along a row each edge's function is monotone, rounding and all: an edge whose function
         // rises towards the triangle's side only starts to hold, the others only stop. The run
-        // of pixels drawn starts where the last rising edge holds, found by bisection, and ends
-        // before the first other edge stops holding: found by bisection too for a sink of runs
-        // or a long row, else as the pixels are drawn (most runs of a detailed mesh are a pixel
-        // or two long).
+        // of pixels drawn starts where the last rising edge holds, searched for, and ends before
+        // the first other edge stops holding: searched for too for a sink of runs or a long row,
+        // else found as the pixels are drawn (most runs of a detailed mesh are a pixel or two
+        // long). A search bisects, or on a wide triangle starts from where the edges cross the
+        // row ([`first_where_near`]).
         let rising = edges.map(|(e, _)| e.y * area < 0.0);
         let slopes = (x1 - x0 >= WIDE).then(|| edges.map(|(e, _)| 1.0 / e.y));
         for y in span.y.0..=span.y.1 {
@@ -409,7 +410,7 @@ impl Rows {
             }
             let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
             if x1 + 1 - first >= LONG_ROW {
-                // A long row's end is bisected too, and its pixels drawn without tests.
+                // A long row's end is searched for too, and its pixels drawn without tests.
                 for x in first..first_where_near(first, x1 + 1, ends, ends_after) {
                     visit.pixel(y * view.pixels + x, depth_at(at(x)));
                 }
@@ -429,7 +430,7 @@ impl Rows {
 /// Candidate pixels up to which a triangle's are each tested alone.
 const SMALL: usize = 4;
 
-/// Pixels left in a row from which a depth image's run ends by bisection.
+/// Pixels left in a row from which a depth image's run end is searched for.
 const LONG_ROW: usize = 8;
 
 /// Candidate pixels from which a row's searches start from where its edges cross it.

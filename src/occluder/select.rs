@@ -235,7 +235,6 @@ impl State<'_> {
             // T-junctions add vertices; price the best few by merging them in. A merge holds
             // until the chosen boxes change.
             let lookahead = self.best_boxes(&mut box_queue, &taken, &covered);
-            let lookahead = lookahead.as_slice();
             let unpriced: Vec<usize> = lookahead
                 .iter()
                 .map(|&(i, _)| i)

@@ -211,36 +211,32 @@ fn cook_voxels(
     let (mesh, topology) = (&prepared.mesh, &prepared.topology);
     run.open_device(cook.device)?;
     let grid = fit_grid(mesh, cook.resolution);
-    let surface = run.on_device("surface", |gpu| voxel::surface(mesh, &grid, gpu))?;
-    let inside = run.on_device("inside", |gpu| {
-        voxel::classify(cook.inside, mesh, topology, &grid, &surface, &cook.cpsv(), gpu)
-    })?;
-    run.note_undecided(inside.cpsv.as_ref());
-    let mut inner = run.stage("inner", || inner_voxels(&inside.solid, &surface))?;
-    // Only open meshes can show their inside.
-    let open_views = match topology.boundary.is_empty() {
-        true => None,
-        false => Some(run.on_device("exposure-render", |gpu| OpenViews::new(mesh, &topology.boundary, gpu))?),
+    let (voxels, quads_found) = match closed_solid(topology, cook).filter(|_| uses(Shape::Quads)) {
+        // Their own crossings decide the quads of a closed mesh, so they are found beside the
+        // voxel stages.
+        Some(solid) => run.beside(
+            "quads",
+            || quads::find(mesh, cook.quad_grid, solid),
+            |run| voxel_stages(run, prepared, &grid, cook),
+        )?,
+        None => {
+            let voxels = voxel_stages(&mut run, prepared, &grid, cook)?;
+            let quads = run.kind_stage(uses(Shape::Quads), "quads", || {
+                find_quads(mesh, &grid, &voxels.inner, cook)
+            })?;
+            (voxels, quads)
+        }
     };
-    let exposed_voxels = match &open_views {
-        None => 0,
-        Some(views) => run.on_device("exposure-voxels", |gpu| views.remove_exposed(&grid, &mut inner, gpu))?,
-    };
-    let voxel_boxes = run.kind_stage(uses(Shape::Boxes), "boxes", || {
-        boxes::expand(&inner, grid.dims, &expansion(cook))
-    })?;
-    let field = run.stage("refine", || WindingField::new(mesh, &topology.boundary))?;
-    let refined = run.stage("refine", || {
-        refine_boxes(mesh, &grid, &field, &inside.solid, &voxel_boxes, cook.refine)
-    })?;
-    // Each candidate with the index of the voxel box it came from.
-    let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
-        None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),
-        Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
-    };
-    let quads_found = run.kind_stage(uses(Shape::Quads), "quads", || {
-        find_quads(mesh, topology, &grid, &inner, cook)
-    })?;
+    let VoxelStages {
+        surface,
+        inside,
+        inner,
+        open_views,
+        exposed_voxels,
+        voxel_boxes,
+        box_sources,
+        box_candidates,
+    } = voxels;
     let quad_count = quads_found.len();
     let (mut panels, quads_shown) = match &open_views {
         None => (quads_found, [0, 0]),
@@ -266,6 +262,67 @@ fn cook_voxels(
     finish(run, prepared, parts, (occluder, chosen), settings, with_eval)
 }
 
+/// What the voxel stages found: the voxels, the open views of an open mesh, and the boxes.
+struct VoxelStages {
+    surface: Vec<bool>,
+    inside: voxel::Classified,
+    /// Inner voxels no camera sees through an opening.
+    inner: Vec<bool>,
+    open_views: Option<OpenViews>,
+    exposed_voxels: usize,
+    voxel_boxes: Vec<VoxelBox>,
+    /// Each box candidate with the index of the voxel box it came from.
+    box_sources: Vec<usize>,
+    box_candidates: Vec<WorldBox>,
+}
+
+/// Voxelize, classify, remove what an opening shows, and grow and refine the boxes.
+fn voxel_stages(
+    run: &mut Run,
+    prepared: &Prepared,
+    grid: &Grid,
+    cook: &CookSettings,
+) -> Result<VoxelStages, CookError> {
+    let uses = |shape: Shape| cook.shapes.contains(&shape);
+    let (mesh, topology) = (&prepared.mesh, &prepared.topology);
+    let surface = run.on_device("surface", |gpu| voxel::surface(mesh, grid, gpu))?;
+    let inside = run.on_device("inside", |gpu| {
+        voxel::classify(cook.inside, mesh, topology, grid, &surface, &cook.cpsv(), gpu)
+    })?;
+    run.note_undecided(inside.cpsv.as_ref());
+    let mut inner = run.stage("inner", || inner_voxels(&inside.solid, &surface))?;
+    // Only open meshes can show their inside.
+    let open_views = match topology.boundary.is_empty() {
+        true => None,
+        false => Some(run.on_device("exposure-render", |gpu| OpenViews::new(mesh, &topology.boundary, gpu))?),
+    };
+    let exposed_voxels = match &open_views {
+        None => 0,
+        Some(views) => run.on_device("exposure-voxels", |gpu| views.remove_exposed(grid, &mut inner, gpu))?,
+    };
+    let voxel_boxes = run.kind_stage(uses(Shape::Boxes), "boxes", || {
+        boxes::expand(&inner, grid.dims, &expansion(cook))
+    })?;
+    let field = run.stage("refine", || WindingField::new(mesh, &topology.boundary))?;
+    let refined = run.stage("refine", || {
+        refine_boxes(mesh, grid, &field, &inside.solid, &voxel_boxes, cook.refine)
+    })?;
+    let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
+        None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),
+        Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
+    };
+    Ok(VoxelStages {
+        surface,
+        inside,
+        inner,
+        open_views,
+        exposed_voxels,
+        voxel_boxes,
+        box_sources,
+        box_candidates,
+    })
+}
+
 /// Evaluates the occluder when asked, and writes the report.
 fn finish(
     mut run: Run,
@@ -275,6 +332,7 @@ fn finish(
     settings: &Settings,
     with_eval: bool,
 ) -> Result<Cooked, CookError> {
+    let cook_ms = run.wall_ms();
     let quality = with_eval
         .then(|| run.evaluate(&prepared.mesh, &prepared.topology, &occluder, settings))
         .transpose()?;
@@ -297,6 +355,7 @@ fn finish(
         device: run.device_name(),
         gpu_stages: run.gpu_stages,
         timings_ms: run.timings,
+        cook_ms,
         device_timings_ms: run.device_timings,
         quality,
         notes: run.notes,
@@ -375,20 +434,23 @@ fn unexposed_boxes(views: &OpenViews, candidates: Vec<(WorldBox, WorldBox)>) -> 
         .unzip()
 }
 
-/// A closed surface's crossings decide exactly whether a quad lies inside. An open one's
-/// winding number varies away from the surface, so its inner voxels decide: those that no
-/// camera sees through an opening. The exposure test then checks each quad. cpsv decides by
-/// cells, so its inner voxels decide too.
-fn find_quads(mesh: &Mesh, topology: &Topology, grid: &Grid, inner: &[bool], cook: &CookSettings) -> Vec<Panel> {
-    let closed = topology.boundary.is_empty();
-    let inner_voxel = |p: DVec3| grid.containing(p).is_some_and(|i| inner[i]);
-    let solid = match cook.inside {
-        InsideMethod::Winding | InsideMethod::Parity if closed => quads::Solid::Closed {
+/// A closed surface's crossings decide exactly whether a quad lies inside, under winding or
+/// parity. None where the voxels decide ([`find_quads`]).
+fn closed_solid(topology: &Topology, cook: &CookSettings) -> Option<quads::Solid<'static>> {
+    match cook.inside {
+        InsideMethod::Winding | InsideMethod::Parity if topology.boundary.is_empty() => Some(quads::Solid::Closed {
             parity: cook.inside == InsideMethod::Parity,
-        },
-        _ => quads::Solid::Points(&inner_voxel),
-    };
-    quads::find(mesh, cook.quad_grid, solid)
+        }),
+        _ => None,
+    }
+}
+
+/// An open surface's winding number varies away from the surface, so its inner voxels decide
+/// whether a quad lies inside: those that no camera sees through an opening. The exposure test
+/// then checks each quad. cpsv decides by cells, so its inner voxels decide too.
+fn find_quads(mesh: &Mesh, grid: &Grid, inner: &[bool], cook: &CookSettings) -> Vec<Panel> {
+    let inner_voxel = |p: DVec3| grid.containing(p).is_some_and(|i| inner[i]);
+    quads::find(mesh, cook.quad_grid, quads::Solid::Points(&inner_voxel))
 }
 
 /// The quads no view sees; one that shows in part is cut down to its largest hidden rectangle.
@@ -503,6 +565,8 @@ fn select_pieces(
 /// and GPU stages the report will name.
 struct Run<'a> {
     timings: Timings,
+    /// When the stages after ingest began.
+    started: Instant,
     /// The device's own time per stage, where it has timestamp queries.
     device_timings: Timings,
     /// The timed device handle, once open.
@@ -520,6 +584,7 @@ impl<'a> Run<'a> {
     fn new(ingest_ms: f64, progress: Progress<'a>) -> Run<'a> {
         Run {
             timings: Timings(vec![("ingest".into(), ingest_ms)]),
+            started: Instant::now(),
             device_timings: Timings::default(),
             gpu: None,
             device_chosen: false,
@@ -529,15 +594,25 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Runs `stage`, reporting it as it starts and timing it, unless the progress callback
-    /// stops the cook there.
-    fn stage<T>(&mut self, stage: &str, work: impl FnOnce() -> T) -> Result<T, CookError> {
+    /// Wall-clock milliseconds of the cook so far, ingest included.
+    fn wall_ms(&self) -> f64 {
+        self.timings.get("ingest") + self.started.elapsed().as_secs_f64() * 1e3
+    }
+
+    /// Reports `stage` as it starts, unless the progress callback stops the cook there.
+    fn start(&self, stage: &str) -> Result<(), CookError> {
         let done = STAGES.iter().position(|s| *s == stage).unwrap_or(0);
         mark_stage(stage);
         (self.progress)(stage, done as f64 / STAGES.len() as f64).map_err(|reason| CookError::Stopped {
             stage: stage.to_string(),
             reason,
-        })?;
+        })
+    }
+
+    /// Runs `stage`, reporting it as it starts and timing it, unless the progress callback
+    /// stops the cook there.
+    fn stage<T>(&mut self, stage: &str, work: impl FnOnce() -> T) -> Result<T, CookError> {
+        self.start(stage)?;
         let start = Instant::now();
         let out = work();
         self.timings.add(stage, start.elapsed().as_secs_f64() * 1e3);
@@ -547,6 +622,29 @@ impl<'a> Run<'a> {
             _ => {}
         }
         Ok(out)
+    }
+
+    /// Runs `main` and, on another thread meanwhile, `beside`: a CPU stage named `stage` that
+    /// needs nothing `main` makes. Progress hears of it once `main` is done, in its place in
+    /// the order. Each stage is timed as it ran, so their times add up to more than the wall
+    /// time, which the report gives as `cook_ms`.
+    fn beside<A: Send, B: Send>(
+        &mut self,
+        stage: &str,
+        beside: impl FnOnce() -> B + Send,
+        main: impl FnOnce(&mut Self) -> Result<A, CookError> + Send,
+    ) -> Result<(A, B), CookError> {
+        let (main, (beside, ms)) = rayon::join(
+            || main(self),
+            || {
+                let start = Instant::now();
+                (beside(), start.elapsed().as_secs_f64() * 1e3)
+            },
+        );
+        let main = main?;
+        self.start(stage)?;
+        self.timings.add(stage, ms);
+        Ok((main, beside))
     }
 
     /// A stage that finds pieces of one kind: none, and not run, when `cook.shapes` leaves that
@@ -719,6 +817,27 @@ const PIPELINES: [&[(&str, &str)]; 5] = [
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn quads_found_beside_the_voxel_stages_are_reported_in_their_place() {
+        let settings = crate::config::load(None, &[]).expect("defaults load");
+        let heard = std::sync::Mutex::new(Vec::new());
+        let progress = |stage: &str, done: f64| {
+            heard.lock().unwrap().push((stage.to_string(), done));
+            Ok(())
+        };
+        let mesh = crate::mesh::shapes::torus(1.0, 0.45, 32, 16);
+        let cooked = cook_with_progress(mesh, Default::default(), 2.0, &settings, false, &progress).expect("cooks");
+        let heard = heard.into_inner().unwrap();
+        let stages: Vec<&str> = heard.iter().map(|(stage, _)| stage.as_str()).collect();
+        assert!(heard.windows(2).all(|w| w[0].1 <= w[1].1), "{heard:?}");
+        let at = |stage: &str| stages.iter().position(|s| *s == stage).expect(stage);
+        assert!(at("surface") < at("refine") && at("refine") < at("quads") && at("quads") < at("select+merge"));
+        let r = &cooked.report;
+        assert!(r.occluder.quads > 0 && r.timings_ms.get("quads") > 0.0, "{r:?}");
+        // Wall time: the ingest it was given, and the stages after.
+        assert!(r.cook_ms > 2.0 && r.total_ms() == r.cook_ms, "{}", r.cook_ms);
+    }
 
     #[test]
     fn a_stage_the_device_refuses_runs_on_the_cpu_with_a_note_and_is_not_listed() {

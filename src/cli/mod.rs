@@ -190,7 +190,7 @@ fn summarize(input: &Path, r: &Report) {
         r.occluder.quads,
         r.occluder.patches,
         r.occluder.surface_pieces,
-        r.timings_ms.total()
+        r.total_ms()
     );
     match &r.quality {
         Some(q) => println!(

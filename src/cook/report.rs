@@ -62,6 +62,9 @@ pub struct Report {
     pub gpu_stages: Vec<&'static str>,
     /// Wall-clock milliseconds per stage, waits for the device included.
     pub timings_ms: Timings,
+    /// Wall-clock milliseconds of the cook, ingest included and eval left out. Some stages run
+    /// side by side, so this can be less than their times' sum.
+    pub cook_ms: f64,
     /// The device's own milliseconds per stage: its passes, from timestamp queries. Empty on
     /// the CPU and on adapters without timestamps.
     #[serde(skip_serializing_if = "Timings::is_empty")]
@@ -70,6 +73,13 @@ pub struct Report {
     pub quality: Option<Quality>,
     /// Why the occluder is empty or smaller than asked, in words.
     pub notes: Vec<String>,
+}
+
+impl Report {
+    /// Wall-clock milliseconds of the cook and its eval.
+    pub fn total_ms(&self) -> f64 {
+        self.cook_ms + self.timings_ms.get("eval")
+    }
 }
 
 #[derive(Clone, Debug, Serialize)]

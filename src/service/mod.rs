@@ -665,7 +665,7 @@ impl Service {
             for (stage, ms) in &cooked.report.timings_ms.0 {
                 metrics::histogram!("occluder_cook_stage_seconds", "stage" => stage.clone()).record(ms / 1e3);
             }
-            metrics::histogram!("occluder_cook_seconds").record(cooked.report.timings_ms.total() / 1e3);
+            metrics::histogram!("occluder_cook_seconds").record(cooked.report.total_ms() / 1e3);
             let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
             Ok((cooked.glb(), report))
         });

@@ -25,7 +25,7 @@ pub mod gpu;
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::{depth_image, depth_images, rasterize, rasterize_eroded, rasterize_within};
+use crate::geom::raster::{self, draw_depth, rasterize, rasterize_eroded, rasterize_within};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::Grid;
@@ -110,7 +110,6 @@ impl OpenViews {
         }
         let pixel = 2.0 * radius / PIXELS as f64;
         let cracked = crack_edges(mesh, boundary, pixel, TOUCHING * radius);
-        // Triangles along a crack are drawn eroded on the CPU, over the rest.
         let uncracked = (!cracked.is_empty()).then(|| Mesh {
             positions: mesh.positions.clone(),
             triangles: (0..mesh.triangles.len())
@@ -118,35 +117,54 @@ impl OpenViews {
                 .map(|t| mesh.triangles[t])
                 .collect(),
         });
-        // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
-        // openings meanwhile.
+        // Each view's farthest depths over its neighbourhoods, one image after another, as the
+        // GPU takes them. On the CPU each view is drawn, eroded and filtered in turn through one
+        // image a thread.
+        let mut depths = vec![0f32; views.len() * PIXELS * PIXELS];
+        let (sky_depths, eye_depths) = depths.split_at_mut(sky_views * PIXELS * PIXELS);
         let (sky, eyes) = views.split_at(sky_views);
-        let lowest = lowest_corners(mesh);
-        let (sky_images, eye_images) = rayon::join(
-            || depth_images(sky, uncracked.as_ref().unwrap_or(mesh), gpu),
-            || {
-                eyes.par_iter()
-                    .zip(&horizons)
-                    .map(|(view, &horizon)| {
-                        depth_image(view, &may_hide_counted(mesh, &lowest, (center, radius), view, horizon))
-                    })
-                    .collect::<Vec<_>>()
-            },
-        );
-        let mut images = sky_images?;
-        images.par_iter_mut().zip(sky).for_each(|(image, view)| {
+        let drawn = uncracked.as_ref().unwrap_or(mesh);
+        // Triangles along a crack are drawn eroded on the CPU, over the rest.
+        let finish = |view: &View, image: &mut [f32], out: &mut [f32]| {
             for (&t, &eroded) in &cracked {
                 let triangle = mesh.corners(t).map(|p| p.as_dvec3());
                 rasterize_eroded(view, &triangle, eroded, |i, d| image[i] = image[i].min(d as f32));
             }
-        });
-        images.extend(eye_images);
-        // One after another, as the GPU takes them.
-        let mut depths = vec![0f32; images.len() * PIXELS * PIXELS];
-        depths
-            .par_chunks_mut(PIXELS * PIXELS)
-            .zip(&images)
-            .for_each(|(out, image)| farthest_nearby(image, PIXELS, out));
+            farthest_nearby(image, PIXELS, out);
+        };
+        let lowest = lowest_corners(mesh);
+        // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
+        // openings meanwhile.
+        let (sky_drawn, ()) = rayon::join(
+            || {
+                let sky_depths = sky_depths.par_chunks_mut(PIXELS * PIXELS).zip(sky);
+                match gpu {
+                    Some(gpu) => {
+                        let images = raster::depth_images(sky, drawn, Some(gpu))?;
+                        sky_depths
+                            .zip(images)
+                            .for_each(|((out, view), mut image)| finish(view, &mut image, out));
+                    }
+                    None => sky_depths.for_each_init(Vec::new, |image, (out, view)| {
+                        draw_depth(view, drawn, image);
+                        finish(view, image, out);
+                    }),
+                }
+                Ok::<_, GpuError>(())
+            },
+            || {
+                let eyes = eye_depths.par_chunks_mut(PIXELS * PIXELS).zip(eyes).zip(&horizons);
+                eyes.for_each_init(Vec::new, |image, ((out, view), &horizon)| {
+                    draw_depth(
+                        view,
+                        &may_hide_counted(mesh, &lowest, (center, radius), view, horizon),
+                        image,
+                    );
+                    farthest_nearby(image, PIXELS, out);
+                });
+            },
+        );
+        sky_drawn?;
         let mut tiles = vec![0f32; views.len() * (PIXELS / TILE).pow(2)];
         tiles
             .par_chunks_mut((PIXELS / TILE).pow(2))
@@ -677,6 +695,7 @@ fn crack_edges(mesh: &Mesh, boundary: &[BoundaryEdge], width: f64, touching: f64
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::raster::depth_image;
     use crate::mesh::topology::orient_closed_components;
     use crate::occluder::{BOX_FACES, Shape};
     use glam::Vec3;

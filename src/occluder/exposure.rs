@@ -27,7 +27,7 @@ use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::{self, draw_depth, rasterize, rasterize_eroded, rasterize_within};
 use crate::gpu::{Gpu, GpuError};
-use crate::mesh::{BoundaryEdge, Mesh};
+use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
 use crate::voxel::winding::WindingField;
 use glam::DVec3;
@@ -55,8 +55,8 @@ const OPEN_WINDING: f64 = 0.3;
 /// Cameras in all openings, the largest openings first: each renders five or six faces of a
 /// cube map.
 const MAX_EYES: usize = 24;
-/// Grid corners tested together, view by view.
-const CORNERS_PER_RUN: usize = 2048;
+/// Grid corners along each side of a brick tested together, view by view.
+const CORNER_BRICK: usize = 8;
 /// Most cells along a side of a panel cut down to its hidden part.
 const MAX_PART_CELLS: usize = 64;
 
@@ -253,35 +253,81 @@ impl OpenViews {
         Ok(exposed.len())
     }
 
-    /// Of the `needed` grid corners (z fastest), those some view sees. Runs of nearby corners
-    /// go through the views one view at a time, so that each view's depths stay in cache.
+    /// Of the `needed` grid corners (z fastest), those some view sees. The corners go a brick
+    /// at a time through the views one view at a time, so that each view's depths stay in
+    /// cache, and a view with the whole brick behind its depths skips it.
     fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
-        let [_, ny, nz] = grid.dims;
-        let corners: Vec<usize> = (0..needed.len()).filter(|&c| needed[c]).collect();
-        let seen: Vec<bool> = corners
-            .par_chunks(CORNERS_PER_RUN)
-            .flat_map_iter(|run| {
+        let dims = grid.dims.map(|d| d + 1);
+        let index = |[x, y, z]: [usize; 3]| (x * dims[1] + y) * dims[2] + z;
+        let starts = |k: usize| (0..dims[k]).step_by(CORNER_BRICK);
+        let bricks: Vec<[usize; 3]> = starts(0)
+            .flat_map(|x| starts(1).flat_map(move |y| starts(2).map(move |z| [x, y, z])))
+            .collect();
+        let seen: Vec<usize> = bricks
+            .par_iter()
+            .flat_map_iter(|&first| {
+                let span = |k: usize| first[k]..(first[k] + CORNER_BRICK).min(dims[k]);
+                let run: Vec<[usize; 3]> = span(0)
+                    .flat_map(|x| span(1).flat_map(move |y| span(2).map(move |z| [x, y, z])))
+                    .filter(|&c| needed[index(c)])
+                    .collect();
                 let points: Vec<DVec3> = run
                     .iter()
-                    .map(|&c| {
-                        let (x, y, z) = (c / ((ny + 1) * (nz + 1)), (c / (nz + 1)) % (ny + 1), c % (nz + 1));
-                        grid.to_world(DVec3::new(x as f64, y as f64, z as f64))
-                    })
+                    .map(|c| grid.to_world(DVec3::from_array(c.map(|i| i as f64))))
                     .collect();
+                let (lo, hi) = point_bounds(points.iter().copied());
                 let mut seen = vec![false; run.len()];
-                for v in 0..self.views.len() {
+                for v in (0..self.views.len()).filter(|&v| !points.is_empty() && !self.hides_box(v, lo, hi)) {
                     for (seen, &p) in seen.iter_mut().zip(&points) {
                         *seen = *seen || self.sees(v, p);
                     }
                 }
-                seen
+                run.into_iter()
+                    .zip(seen)
+                    .filter(|(_, seen)| *seen)
+                    .map(move |(c, _)| index(c))
             })
             .collect();
         let mut all = vec![false; needed.len()];
-        for (&c, &seen) in corners.iter().zip(&seen) {
-            all[c] = seen;
+        for c in seen {
+            all[c] = true;
         }
         all
+    }
+
+    /// Whether view `v` sees no point of the box [lo, hi]: a camera in an opening, none where
+    /// the box lies wholly above the opening or behind the camera; any view, none where the box
+    /// lies in front of it, projects onto the image, and lies behind the farthest depth of every
+    /// tile under it. Rounding moves the box's points by far less than the margins.
+    fn hides_box(&self, v: usize, lo: DVec3, hi: DVec3) -> bool {
+        let view = &self.views[v];
+        let (tolerance, rounding) = (view.depth_tolerance(), self.rounding());
+        if self.horizon(v).is_some_and(|horizon| lo.y - rounding > horizon) {
+            return true;
+        }
+        let corners = (0..8).map(|k| {
+            let pick = glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0);
+            view.project(DVec3::select(pick, hi, lo))
+        });
+        // Within the corners' bounds: the box's points in front of a camera project into the
+        // hull of its corners, and depth is linear.
+        let (a, b) = point_bounds(corners);
+        if self.horizon(v).is_some() && b.z + rounding <= tolerance {
+            return true;
+        }
+        let (n, margin) = (PIXELS as f64, 1e-6);
+        let on_image = a.x - margin >= 0.0 && a.y - margin >= 0.0 && b.x + margin < n && b.y + margin < n;
+        a.z - rounding > 0.0 && on_image && a.z - rounding >= f64::from(self.farthest_over(v, a, b)) - tolerance
+    }
+
+    /// The farthest depth of view `v`'s tiles under the pixels from `lo` to `hi`, with half a
+    /// pixel around.
+    fn farthest_over(&self, v: usize, lo: DVec3, hi: DVec3) -> f32 {
+        let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
+        let tiles = PIXELS / TILE;
+        let far = &self.tiles[v * tiles * tiles..(v + 1) * tiles * tiles];
+        rows.flat_map(|ty| columns.clone().map(move |tx| far[ty * tiles + tx]))
+            .fold(0f32, f32::max)
     }
 
     /// [`OpenViews::seen_corners`] on the GPU.
@@ -418,15 +464,12 @@ impl OpenViews {
             corners[0].min(corners[1]).min(corners[2]),
             corners[0].max(corners[1]).max(corners[2]),
         );
+        // The quick answer: a triangle on screen whose nearest corner lies behind the farthest
+        // depth of every tile under its screen bounds shows nowhere.
+        let farthest = self.farthest_over(v, lo, hi);
         let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
         let tiles = PIXELS / TILE;
         let far = &self.tiles[v * tiles * tiles..(v + 1) * tiles * tiles];
-        // The quick answer: a triangle on screen whose nearest corner lies behind the farthest
-        // depth of every tile under its screen bounds shows nowhere.
-        let farthest = rows
-            .clone()
-            .flat_map(|ty| columns.clone().map(move |tx| far[ty * tiles + tx]))
-            .fold(0f32, f32::max);
         let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
         if on_screen && lo.z >= f64::from(farthest) - tolerance {
             return;
@@ -871,6 +914,46 @@ mod tests {
             left_out > 5_000 && changed > 1_000,
             "{left_out} triangles left out, {changed} pixels changed"
         );
+    }
+
+    #[test]
+    fn corners_tested_a_brick_at_a_time_are_those_every_view_sees_one_by_one() {
+        // A cube split by a crack, with cameras in the crack, seen through from above; corners
+        // inside it and around it.
+        let views = views_of(split_cube(0.02));
+        let grid = Grid::fit(Vec3::splat(0.02), Vec3::splat(1.02), 30);
+        let dims = grid.dims.map(|d| d + 1);
+        let mut rng = fastrand::Rng::with_seed(4);
+        let needed: Vec<bool> = (0..dims.iter().product()).map(|_| rng.f64() < 0.7).collect();
+        let by_bricks = views.seen_corners(&grid, &needed);
+        let one_by_one: Vec<bool> = (0..needed.len())
+            .map(|c| {
+                let at = [c / (dims[1] * dims[2]), c / dims[2] % dims[1], c % dims[2]];
+                let p = grid.to_world(DVec3::from_array(at.map(|i| i as f64)));
+                needed[c] && (0..views.views.len()).any(|v| views.sees(v, p))
+            })
+            .collect();
+        assert_eq!(by_bricks, one_by_one);
+        let (seen, hidden) = (
+            one_by_one.iter().filter(|&&s| s).count(),
+            needed.iter().zip(&one_by_one).filter(|&(&n, &s)| n && !s).count(),
+        );
+        assert!(seen > 1_000 && hidden > 500, "{seen} corners seen, {hidden} hidden");
+        // A view that skips a box sees none of its points, and boxes are skipped by the sky's
+        // views and by the cameras in the crack: those above its top, and those behind them.
+        let mut skipped = [0, 0];
+        for _ in 0..200 {
+            let lo = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 1.4 - 0.2;
+            let hi = lo + DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 0.3;
+            for v in (0..views.views.len()).filter(|&v| views.hides_box(v, lo, hi)) {
+                skipped[usize::from(v >= views.sky_views)] += 1;
+                for k in 0..27 {
+                    let t = DVec3::new((k % 3) as f64, (k / 3 % 3) as f64, (k / 9) as f64) / 2.0;
+                    assert!(!views.sees(v, lo + (hi - lo) * t), "view {v} sees into {lo} {hi}");
+                }
+            }
+        }
+        assert!(skipped[0] > 1_000 && skipped[1] > 1_000, "{skipped:?} boxes skipped");
     }
 
     #[test]

@@ -227,34 +227,34 @@ fn cook_voxels(
             (voxels, quads)
         }
     };
-    let VoxelStages {
-        surface,
-        inside,
-        inner,
-        open_views,
-        exposed_voxels,
-        voxel_boxes,
-        box_sources,
-        box_candidates,
-    } = voxels;
     let quad_count = quads_found.len();
-    let (mut panels, quads_shown) = match &open_views {
+    let (mut panels, quads_shown) = match &voxels.open_views {
         None => (quads_found, [0, 0]),
         Some(views) => run.stage("exposure-quads", || unexposed_quads(views, quads_found))?,
     };
     panels.extend(run.kind_stage(uses(Shape::Patches), "patches", || find_patches(mesh, topology, cook))?);
     // Selection merges as it goes; its last merge is the solid part of the occluder.
     let (occluder, chosen) = run.stage("select+merge", || {
-        select_pieces(mesh, &box_candidates, &panels, pieces, cook)
+        select_pieces(mesh, &voxels.box_candidates, &panels, pieces, cook)
     })?;
-    let inner_count = inner.iter().filter(|&&v| v).count();
-    let exposed = [exposed_voxels, voxel_boxes.len() - box_candidates.len(), quads_shown[0]];
-    run.note_exposure(open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
+    let inner_count = voxels.inner.iter().filter(|&&v| v).count();
+    let exposed = [
+        voxels.exposed_voxels,
+        voxels.voxel_boxes.len() - voxels.box_candidates.len(),
+        quads_shown[0],
+    ];
+    run.note_exposure(voxels.open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
     let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
     run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
     let parts = VoxelParts {
-        voxels: VoxelReport::new(&surface, &inside, inner_count, exposed_voxels),
-        boxes: BoxReport::new(&voxel_boxes, &box_candidates, &box_sources, &chosen.boxes, inner_count),
+        voxels: VoxelReport::new(&voxels.surface, &voxels.inside, inner_count, voxels.exposed_voxels),
+        boxes: BoxReport::new(
+            &voxels.voxel_boxes,
+            &voxels.box_candidates,
+            &voxels.box_sources,
+            &chosen.boxes,
+            inner_count,
+        ),
         grid,
         quads: (quad_count, quads_shown),
         panels: panels.len(),

@@ -222,10 +222,9 @@ impl OpenViews {
     pub fn remove_exposed(&self, grid: &Grid, inner: &mut [bool], gpu: Option<&Gpu>) -> Result<usize, GpuError> {
         // Neighbouring voxels share corners: test each corner once.
         let [_, ny, nz] = grid.dims;
-        let corner = |x: usize, y: usize, z: usize| (x * (ny + 1) + y) * (nz + 1) + z;
         let corners_of = |i: usize| {
             let [x, y, z] = grid.coords(i);
-            (0..8).map(move |c| corner(x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1)))
+            (0..8).map(move |c| corner_index(grid, [x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1)]))
         };
         // A corner is needed when one of the (up to 8) voxels around it is inner.
         let [nx, ny1, nz1] = [grid.dims[0], ny + 1, nz + 1];
@@ -258,7 +257,6 @@ impl OpenViews {
     /// cache, and a view with the whole brick behind its depths skips it.
     fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
         let dims = grid.dims.map(|d| d + 1);
-        let index = |[x, y, z]: [usize; 3]| (x * dims[1] + y) * dims[2] + z;
         let starts = |k: usize| (0..dims[k]).step_by(CORNER_BRICK);
         let bricks: Vec<[usize; 3]> = starts(0)
             .flat_map(|x| starts(1).flat_map(move |y| starts(2).map(move |z| [x, y, z])))
@@ -269,7 +267,7 @@ impl OpenViews {
                 let span = |k: usize| first[k]..(first[k] + CORNER_BRICK).min(dims[k]);
                 let run: Vec<[usize; 3]> = span(0)
                     .flat_map(|x| span(1).flat_map(move |y| span(2).map(move |z| [x, y, z])))
-                    .filter(|&c| needed[index(c)])
+                    .filter(|&c| needed[corner_index(grid, c)])
                     .collect();
                 let points: Vec<DVec3> = run
                     .iter()
@@ -285,7 +283,7 @@ impl OpenViews {
                 run.into_iter()
                     .zip(seen)
                     .filter(|(_, seen)| *seen)
-                    .map(move |(c, _)| index(c))
+                    .map(|(c, _)| corner_index(grid, c))
             })
             .collect();
         let mut all = vec![false; needed.len()];
@@ -580,6 +578,11 @@ fn may_hide_counted(mesh: &Mesh, lowest: &[f32], sphere: (DVec3, f64), view: &Vi
             .map(|t| mesh.triangles[t])
             .collect(),
     }
+}
+
+/// The index of grid corner [x, y, z] (z fastest) among the grid's corners.
+fn corner_index(grid: &Grid, [x, y, z]: [usize; 3]) -> usize {
+    (x * (grid.dims[1] + 1) + y) * (grid.dims[2] + 1) + z
 }
 
 /// The tiles whose pixel centres may lie in [a, b] along one axis of the screen.

@@ -8,6 +8,7 @@ use super::Grid;
 use crate::mesh::Mesh;
 use num_traits::Float;
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// Half a voxel plus this, in voxel units, so that rounding never misses a touch: extra
 /// surface voxels only make the inner set smaller, which stays conservative.
@@ -22,7 +23,8 @@ pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
     let hits: Vec<Vec<usize>> = triangles
         .par_iter()
         .fold(Vec::new, |mut out, tri| {
-            let [xs, ys, zs] = Grid::local_spans(tri, [nx, ny, nz]);
+            let spans = Grid::local_spans(tri, [nx, ny, nz]);
+            let [xs, ys, zs]: [Range<usize>; 3] = std::array::from_fn(|k| facing(tri, k, spans[k].clone(), half));
             for x in xs {
                 for y in ys.clone() {
                     for z in zs.clone() {
@@ -41,6 +43,21 @@ pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
         voxels[v] = true;
     }
     voxels
+}
+
+/// The voxels of `span` along axis k, less those at either end that the box's face along k
+/// separates from the triangle: [`triangle_box_overlap`] rejects them first thing, by the same
+/// arithmetic, so only voxels that can pass are tested.
+fn facing(tri: &[[f32; 3]; 3], k: usize, span: Range<usize>, half: f32) -> Range<usize> {
+    let apart = |x: usize| separated(tri.map(|p| p[k] - (x as f32 + 0.5)), half);
+    let (mut start, mut end) = (span.start, span.end);
+    while start < end && apart(start) {
+        start += 1;
+    }
+    while end > start && apart(end - 1) {
+        end -= 1;
+    }
+    start..end
 }
 
 fn separated<F: Float>(p: [F; 3], r: F) -> bool {
@@ -86,4 +103,59 @@ pub fn triangle_box_overlap<F: Float>(center: [F; 3], half: [F; 3], tri: &[[F; 3
         }
     }
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// Every voxel of the grid tested against every triangle: what `voxelize` must mark.
+    fn touched_one_by_one(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
+        let [_, ny, nz] = grid.dims;
+        let half = [0.5 + SLACK; 3];
+        let mut voxels = vec![false; grid.len()];
+        for tri in grid.local_triangles(mesh) {
+            for (v, voxel) in voxels.iter_mut().enumerate() {
+                let centre = [v / (ny * nz), v / nz % ny, v % nz].map(|c| c as f32 + 0.5);
+                *voxel |= triangle_box_overlap(centre, half, &tri);
+            }
+        }
+        voxels
+    }
+
+    #[test]
+    fn voxels_left_out_of_each_triangles_span_are_those_no_test_would_mark() {
+        let mut rng = fastrand::Rng::with_seed(5);
+        let grid = Grid {
+            origin: [0.0; 3],
+            voxel_size: 1.0,
+            dims: [9, 8, 7],
+        };
+        // Corners on voxel faces, just off them and anywhere: the ends of a span are decided
+        // by a hair's breadth.
+        let coordinate = |rng: &mut fastrand::Rng, n: usize| match rng.usize(0..3) {
+            0 => rng.usize(0..=n) as f32,
+            1 => rng.usize(0..=n) as f32 + [-1.0, 1.0][rng.usize(0..2)] * SLACK * rng.f32() * 2.0,
+            _ => rng.f32() * n as f32,
+        };
+        let corner = |rng: &mut fastrand::Rng| Vec3::new(coordinate(rng, 9), coordinate(rng, 8), coordinate(rng, 7));
+        for _ in 0..300 {
+            let mut positions = Vec::new();
+            for _ in 0..3 {
+                let a = corner(&mut rng);
+                // Small triangles too, within a voxel or two.
+                let (b, c) = match rng.bool() {
+                    true => (corner(&mut rng), corner(&mut rng)),
+                    false => (a + Vec3::splat(0.3), a + Vec3::new(0.0, 0.9, -0.2)),
+                };
+                positions.extend([a, b, c]);
+            }
+            let mesh = Mesh {
+                positions,
+                triangles: vec![[0, 1, 2], [3, 4, 5], [6, 7, 8]],
+            };
+            assert_eq!(voxelize(&mesh, &grid), touched_one_by_one(&mesh, &grid));
+        }
+    }
 }

@@ -83,17 +83,23 @@ impl AxisGrid {
         self.origin[k] + index_to_f64(index) * self.cell
     }
 
-    /// The lines along grid axis k (as indices for [`AxisGrid::line`]) within [lo, hi], give
-    /// or take rounding. Without rounding calls: the coordinates are never below the origin.
-    fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::RangeInclusive<usize> {
-        let (a, b) = ((lo - self.origin[k]) / self.cell, (hi - self.origin[k]) / self.cell);
-        ceil_index(a)..=floor_index(b).min(self.dims[k])
+    /// Coordinate x along grid axis k in cells from the origin. Rounding keeps its order, so
+    /// the least of several coordinates gives the least of theirs.
+    fn cells_along(&self, k: usize, x: f64) -> f64 {
+        (x - self.origin[k]) / self.cell
     }
 
-    /// Cells whose closed footprint meets [lo, hi] along grid axis k.
+    /// The lines along grid axis k (as indices for [`AxisGrid::line`]) within [lo, hi], in
+    /// cells from the origin ([`AxisGrid::cells_along`]), give or take rounding. Without
+    /// rounding calls: the coordinates are never below the origin.
+    fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::RangeInclusive<usize> {
+        ceil_index(lo)..=floor_index(hi).min(self.dims[k])
+    }
+
+    /// Cells whose closed footprint meets [lo, hi] along grid axis k, in cells from the origin.
     fn range(&self, k: usize, lo: f64, hi: f64) -> std::ops::Range<usize> {
-        let a = ceil_index((lo - self.origin[k]) / self.cell - 1.0);
-        let b = match (hi - self.origin[k]) / self.cell {
+        let a = ceil_index(lo - 1.0);
+        let b = match hi {
             f if f < 0.0 => 0,
             f => (floor_index(f) + 1).min(self.dims[k]),
         };
@@ -292,12 +298,18 @@ struct Block {
 /// one list per share of the triangles, which the counting sort reads without joining them.
 fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Block>> {
     let nv = g.dims[1];
+    // Each corner's place among the cells, once rather than in each of its triangles.
+    let in_cells: Vec<[f64; 2]> = corners
+        .iter()
+        .map(|p| [g.cells_along(0, p[0]), g.cells_along(1, p[1])])
+        .collect();
     (0..mesh.triangles.len())
         .into_par_iter()
         .fold(
             || (Vec::new(), CellHeights::default()),
             |(mut out, mut cells), t| {
                 let tri = mesh.triangles[t].map(|i| corners[i as usize]);
+                let places = mesh.triangles[t].map(|i| in_cells[i as usize]);
                 let block = |c: usize, heights| Block {
                     cell: c as u32,
                     triangle: t as u32,
@@ -305,13 +317,19 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
                 };
                 let lo = |k: usize| tri.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
                 let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
-                let (ru, rv) = (g.range(0, lo(0), hi(0)), g.range(1, lo(1), hi(1)));
+                let range = |k: usize| {
+                    let (lo, hi) = places.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                        (lo.min(p[k]), hi.max(p[k]))
+                    });
+                    g.range(k, lo, hi)
+                };
+                let (ru, rv) = (range(0), range(1));
                 if ru.len() == 1 && rv.len() == 1 {
                     // Wholly inside one cell.
                     out.push(block(ru.start * nv + rv.start, (lo(2), hi(2))));
                     return (out, cells);
                 }
-                cells.of_triangle(&tri, g, [ru.start, rv.start], [ru.len(), rv.len()]);
+                cells.of_triangle(&tri, &places, g, [ru.start, rv.start], [ru.len(), rv.len()]);
                 for (u, row) in ru.zip(cells.heights.chunks(rv.len() + 2).skip(1)) {
                     for (v, &(t0, t1)) in rv.clone().zip(&row[1..]) {
                         if t0 <= t1 {
@@ -347,19 +365,26 @@ type Along = (usize, bool);
 
 impl CellHeights {
     /// The heights of `tri` over the cells from `first`, `cells` along each axis: those whose
-    /// closed footprints its bounds meet. Over a cell, the height is linear on the part of the
+    /// closed footprints its bounds meet. `places` are its corners in cells from the origin. Over a cell, the height is linear on the part of the
     /// triangle in it, so its extremes lie at that part's corners: the triangle's own corners,
     /// where its edges cross the lines between cells, and where two such lines cross inside
     /// it. Each of those points counts in every cell whose closed footprint holds it.
-    fn of_triangle(&mut self, tri: &[[f64; 3]; 3], g: &AxisGrid, first: [usize; 2], cells: [usize; 2]) {
+    fn of_triangle(
+        &mut self,
+        tri: &[[f64; 3]; 3],
+        places: &[[f64; 2]; 3],
+        g: &AxisGrid,
+        first: [usize; 2],
+        cells: [usize; 2],
+    ) {
         self.heights.clear();
         self.heights
             .resize((cells[0] + 2) * (cells[1] + 2), (f64::INFINITY, f64::NEG_INFINITY));
         self.sections.clear();
         self.sections.resize(cells[0] + 1, None);
         (self.first, self.cells) = (first, cells);
-        for p in tri {
-            self.add(self.at(g, 0, p[0]), self.at(g, 1, p[1]), p[2]);
+        for (p, place) in tri.iter().zip(places) {
+            self.add(self.at(0, place[0]), self.at(1, place[1]), p[2]);
         }
         for k in 0..2 {
             let other = 1 - k;
@@ -368,11 +393,12 @@ impl CellHeights {
                 if a[k] == b[k] {
                     continue;
                 }
-                let (lo, hi) = if a[k] < b[k] { (a[k], b[k]) } else { (b[k], a[k]) };
+                let (pa, pb) = (places[i][k], places[(i + 1) % 3][k]);
+                let (lo, hi) = if a[k] < b[k] { (pa, pb) } else { (pb, pa) };
                 for line in g.lines_within(k, lo, hi) {
                     let s = (g.line(k, line) - a[k]) / (b[k] - a[k]);
                     let (y, t) = (a[other] + s * (b[other] - a[other]), a[2] + s * (b[2] - a[2]));
-                    let (across, along) = (self.on_line(k, line), self.at(g, other, y));
+                    let (across, along) = (self.on_line(k, line), self.at(other, g.cells_along(other, y)));
                     if k == 1 {
                         self.add(along, across, t);
                         continue;
@@ -397,7 +423,7 @@ impl CellHeights {
             let Some([(v0, t0), (v1, t1)]) = *section else {
                 continue;
             };
-            for across in g.lines_within(1, v0, v1) {
+            for across in g.lines_within(1, g.cells_along(1, v0), g.cells_along(1, v1)) {
                 let v = g.line(1, across);
                 if v0 < v && v < v1 {
                     let t = t0 + (v - v0) * ((t1 - t0) / (v1 - v0));
@@ -408,10 +434,9 @@ impl CellHeights {
         self.sections = sections;
     }
 
-    /// The cells along grid axis k whose closed footprints hold coordinate x (never below the
-    /// origin): cell x / cell, and the one before where x lies on the line between them.
-    fn at(&self, g: &AxisGrid, k: usize, x: f64) -> Along {
-        let f = (x - g.origin[k]) / g.cell;
+    /// The cells along grid axis k whose closed footprints hold the point `f` cells from the
+    /// origin (never below it): cell f, and the one before where f lies on the line between.
+    fn at(&self, k: usize, f: f64) -> Along {
         let i = floor_index(f);
         let on_line = index_to_f64(i) == f;
         self.place(k, i + 1 - usize::from(on_line), on_line)
@@ -970,14 +995,15 @@ mod tests {
                 let wall = coordinate(&mut rng);
                 tri.iter_mut().for_each(|p| p[k] = wall);
             }
+            let places = tri.map(|p| [g.cells_along(0, p[0]), g.cells_along(1, p[1])]);
             let bounds = |k: usize| {
-                let (lo, hi) = tri.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                let (lo, hi) = places.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
                     (lo.min(p[k]), hi.max(p[k]))
                 });
                 g.range(k, lo, hi)
             };
             let (ru, rv) = (bounds(0), bounds(1));
-            cells.of_triangle(&tri, &g, [ru.start, rv.start], [ru.len(), rv.len()]);
+            cells.of_triangle(&tri, &places, &g, [ru.start, rv.start], [ru.len(), rv.len()]);
             let width = rv.len() + 2;
             let each = ru.clone().flat_map(|u| rv.clone().map(move |v| (u, v)));
             for (u, v) in each {

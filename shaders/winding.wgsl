@@ -2,7 +2,7 @@
 // each voxel plus the solid angle of a curtain hung from the open boundary.
 // `crossings`: each crossing adds its sign to the highest voxel below it; `above` sums them from
 // the top of each column; `classify` adds the curtain term as the CPU twin does (exact every
-// STRIDE voxels, interpolated between where that is safe) and writes 1 for inside.
+// STRIDE voxels, interpolated between where that is safe) and sets a bit for inside.
 
 @group(0) @binding(2) var<storage, read_write> sums: array<atomic<i32>>;
 // Boundary edges, two rows each: (a, weight), (b, unused). The first UNIFORM_EDGES are in a
@@ -11,8 +11,15 @@
 const UNIFORM_EDGES: u32 = 2048u;
 @group(0) @binding(3) var<uniform> boundary: array<vec4<f32>, 4096>;
 @group(0) @binding(6) var<storage, read> more_boundary: array<vec4<f32>>;
-// 1 for inside, 0 for outside.
-@group(0) @binding(5) var<storage, read_write> inside: array<u32>;
+// A bit a voxel, set for inside: a 32nd of the bytes to read back that a word a voxel takes.
+// A word may hold the ends of two columns, so bits are set atomically.
+@group(0) @binding(5) var<storage, read_write> inside: array<atomic<u32>>;
+
+fn mark_inside(voxel: u32, is_inside: bool) {
+    if is_inside {
+        atomicOr(&inside[voxel / 32u], 1u << (voxel % 32u));
+    }
+}
 
 const PI: f32 = 3.14159265358979;
 
@@ -91,7 +98,7 @@ fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_i
     if params.boundary_edges == 0u {
         if id % max(segments, 1u) == 0u {
             for (var z = 0u; z < nz; z++) {
-                inside[start + z] = select(0u, 1u, atomicLoad(&sums[start + z]) >= 1);
+                mark_inside(start + z, atomicLoad(&sums[start + z]) >= 1);
             }
         }
         return;
@@ -99,7 +106,7 @@ fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_i
     var z0 = (id % max(segments, 1u)) * params.segment;
     let last = min(z0 + params.segment, nz - 1u);
     var b0 = curtain(vec3<f32>(x, y, f32(z0) + 0.5));
-    inside[start + z0] = select(0u, 1u, f32(atomicLoad(&sums[start + z0])) + b0 >= 0.5);
+    mark_inside(start + z0, f32(atomicLoad(&sums[start + z0])) + b0 >= 0.5);
     while z0 < last {
         let z1 = min(z0 + STRIDE, last);
         let b1 = curtain(vec3<f32>(x, y, f32(z1) + 0.5));
@@ -111,9 +118,9 @@ fn classify(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_i
             if !(gentle && abs(estimate - 0.5) > MARGIN) {
                 w = count + curtain(vec3<f32>(x, y, f32(z) + 0.5));
             }
-            inside[start + z] = select(0u, 1u, w >= 0.5);
+            mark_inside(start + z, w >= 0.5);
         }
-        inside[start + z1] = select(0u, 1u, f32(atomicLoad(&sums[start + z1])) + b1 >= 0.5);
+        mark_inside(start + z1, f32(atomicLoad(&sums[start + z1])) + b1 >= 0.5);
         z0 = z1;
         b0 = b1;
     }

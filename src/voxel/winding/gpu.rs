@@ -4,7 +4,7 @@ use super::STRIDE;
 use crate::gpu::{Gpu, GpuError, WORKGROUP};
 use crate::mesh::{BoundaryEdge, Mesh};
 use crate::voxel::Grid;
-use crate::voxel::gpu::{LOOP_BUDGET, Units, params, slabs, triangle_chunks, triangle_pass, voxel_shader};
+use crate::voxel::gpu::{LOOP_BUDGET, Units, params, slabs, triangle_chunks, triangle_pass, unpack_bits, voxel_shader};
 
 const SHADER: &str = voxel_shader!("winding.wgsl");
 
@@ -51,11 +51,11 @@ pub fn classify(gpu: &Gpu, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) 
             gpu.upload(&edges[split..]),
         );
         let mut voxels = vec![false; grid.len()];
-        // Signed sums and inside flags: 8 bytes a voxel.
+        // Signed sums: 4 bytes a voxel; the inside bits are a 32nd of that.
         for slab in slabs(gpu, grid, layer as u64 * 4)? {
             let count = slab.len() * layer;
             let sums = gpu.zeroed(count as u64 * 4);
-            let inside = gpu.zeroed(count as u64 * 4);
+            let inside = gpu.zeroed((count as u64).div_ceil(32) * 4);
             triangle_pass(gpu, (SHADER, "crossings"), &chunks, grid, &slab, Units::Columns, &sums);
             let columns = slab.len() * ny;
             let p = gpu.upload(&params(grid, &slab, 0, boundary.len(), segment));
@@ -68,10 +68,7 @@ pub fn classify(gpu: &Gpu, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) 
                 &[(0, &p), (2, &sums), (3, &edges), (5, &inside), (6, &more_edges)],
                 groups(columns * segments),
             );
-            let flags: Vec<u32> = gpu.read(&inside)?;
-            for (v, &flag) in voxels[slab.start * layer..slab.end * layer].iter_mut().zip(&flags) {
-                *v = flag == 1;
-            }
+            unpack_bits(&gpu.read(&inside)?, &mut voxels[slab.start * layer..slab.end * layer]);
         }
         Ok(voxels)
     })

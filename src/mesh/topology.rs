@@ -2,6 +2,7 @@
 //! orientation of closed parts.
 
 use super::Mesh;
+use rayon::slice::ParallelSliceMut;
 use serde::Serialize;
 
 /// An edge of the surface's boundary chain: `weight` copies of the directed edge `a → b`.
@@ -97,7 +98,8 @@ fn edge_uses(mesh: &Mesh) -> Vec<((u32, u32), EdgeUses)> {
             })
         })
         .collect();
-    directed.sort_unstable();
+    // Equal entries are the same value, so the parallel sort's order is the serial one's.
+    directed.par_sort_unstable();
     directed
         .chunk_by(|x, y| x.0 == y.0)
         .map(|uses| {

@@ -10,7 +10,7 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 use spade::{ConstrainedDelaunayTriangulation, Point2, Triangulation};
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 /// One flat region of the surface, as triangles.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -154,22 +154,23 @@ fn retriangulate(mesh: &Mesh, region: &[usize], tolerance: f64) -> Option<Vec<[[
     // Straightening only drops corners that lie on a line to well within the tolerance.
     outline.straighten(&flat, tolerance * 1e-3);
     let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> = ConstrainedDelaunayTriangulation::new();
-    let mut vertex_of_handle: HashMap<usize, u32> = HashMap::new();
-    let mut handle_of_vertex: HashMap<u32, spade::handles::FixedVertexHandle> = HashMap::new();
     // In a fixed order: where corners lie on one circle (a rectangle's), the order of insertion
     // picks the triangulation.
-    let mut corners: Vec<u32> = outline.neighbours.keys().copied().collect();
-    corners.sort_unstable();
-    for v in corners {
+    let corners: Vec<u32> = outline.neighbours.keys().copied().collect();
+    let mut vertex_of_handle: Vec<Option<u32>> = vec![None; corners.len()];
+    let mut handles = Vec::with_capacity(corners.len());
+    for &v in &corners {
         let p = flat(v);
         let handle = cdt.insert(Point2::new(p.x, p.y)).ok()?;
-        if vertex_of_handle.insert(handle.index(), v).is_some() {
+        // A handle met before is a corner at the same point as another.
+        if vertex_of_handle[handle.index()].replace(v).is_some() {
             return None;
         }
-        handle_of_vertex.insert(v, handle);
+        handles.push(handle);
     }
+    let handle_of = |v: u32| handles[corners.binary_search(&v).expect("an outline corner")];
     for (a, b) in outline.edges() {
-        let (ha, hb) = (handle_of_vertex[&a], handle_of_vertex[&b]);
+        let (ha, hb) = (handle_of(a), handle_of(b));
         if !cdt.can_add_constraint(ha, hb) {
             return None;
         }
@@ -179,7 +180,9 @@ fn retriangulate(mesh: &Mesh, region: &[usize], tolerance: f64) -> Option<Vec<[[
     let mut kept = Vec::new();
     let mut kept_area = 0.0;
     for face in cdt.inner_faces() {
-        let corners = face.vertices().map(|v| vertex_of_handle[&v.fix().index()]);
+        let corners = face
+            .vertices()
+            .map(|v| vertex_of_handle[v.fix().index()].expect("an inserted corner"));
         let q = corners.map(flat);
         let centroid = (q[0] + q[1] + q[2]) / 3.0;
         if triangles2d.iter().any(|t| contains(t, centroid)) {
@@ -230,23 +233,25 @@ impl Frame {
     }
 }
 
-/// The edges that only one triangle of a region uses, as each corner's neighbours along them.
+/// The edges that only one triangle of a region uses, as each corner's neighbours along them,
+/// the corners in order.
 struct Outline {
-    neighbours: HashMap<u32, Vec<u32>>,
+    neighbours: BTreeMap<u32, Vec<u32>>,
 }
 
 impl Outline {
     fn of(mesh: &Mesh, region: &[usize]) -> Outline {
-        let mut uses: HashMap<(u32, u32), u32> = HashMap::new();
-        for &t in region {
-            let tri = mesh.triangles[t];
-            for k in 0..3 {
-                let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                *uses.entry((a.min(b), a.max(b))).or_default() += 1;
-            }
-        }
-        let mut neighbours: HashMap<u32, Vec<u32>> = HashMap::new();
-        for (&(a, b), _) in uses.iter().filter(|(_, n)| **n == 1) {
+        let mut edges: Vec<(u32, u32)> = region
+            .iter()
+            .flat_map(|&t| {
+                let tri = mesh.triangles[t];
+                (0..3).map(move |k| (tri[k].min(tri[(k + 1) % 3]), tri[k].max(tri[(k + 1) % 3])))
+            })
+            .collect();
+        edges.sort_unstable();
+        let mut neighbours: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
+        for uses in edges.chunk_by(|x, y| x == y).filter(|uses| uses.len() == 1) {
+            let (a, b) = uses[0];
             neighbours.entry(a).or_default().push(b);
             neighbours.entry(b).or_default().push(a);
         }
@@ -267,8 +272,7 @@ impl Outline {
     /// Drops corners where the outline runs straight on (within `straight` of the line between
     /// its neighbours, and between them), joining the neighbours.
     fn straighten(&mut self, flat: &impl Fn(u32) -> DVec2, straight: f64) {
-        let mut corners: Vec<u32> = self.neighbours.keys().copied().collect();
-        corners.sort_unstable();
+        let corners: Vec<u32> = self.neighbours.keys().copied().collect();
         for v in corners {
             let [p, q] = match self.neighbours[&v][..] {
                 [p, q] => [p, q],

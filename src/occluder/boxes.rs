@@ -133,6 +133,9 @@ fn coords(index: usize, dims: [usize; 3]) -> [usize; 3] {
     [xy / dims[1], xy % dims[1], z]
 }
 
+/// Entries of a slab summed along x by one task.
+const SUM_SHARE: usize = 4096;
+
 /// Counts of a set's voxels over any box in O(1).
 struct SummedVolume {
     sums: Vec<u32>,
@@ -158,11 +161,20 @@ impl SummedVolume {
                 }
             }
         });
-        for x in 1..sx {
-            let (before, slab) = sums.split_at_mut(x * sy * sz);
-            let previous = &before[(x - 1) * sy * sz..];
-            slab[..sy * sz].iter_mut().zip(previous).for_each(|(s, p)| *s += p);
+        // Then along x: a share of each slab's entries at a time, through every slab in turn.
+        let slab = sy * sz;
+        let mut shares: Vec<Vec<&mut [u32]>> = (0..slab.div_ceil(SUM_SHARE)).map(|_| Vec::with_capacity(sx)).collect();
+        for slab in sums.chunks_mut(slab) {
+            for (share, part) in shares.iter_mut().zip(slab.chunks_mut(SUM_SHARE)) {
+                share.push(part);
+            }
         }
+        shares.par_iter_mut().for_each(|parts| {
+            for x in 1..parts.len() {
+                let (before, after) = parts.split_at_mut(x);
+                after[0].iter_mut().zip(&*before[x - 1]).for_each(|(s, p)| *s += p);
+            }
+        });
         SummedVolume { sums, dims }
     }
 
@@ -300,6 +312,31 @@ mod tests {
             .filter(|(_, d)| **d > 0.0)
             .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))
             .map(|(i, _)| i)
+    }
+
+    #[test]
+    fn summed_volumes_count_the_voxels_of_any_box() {
+        let mut rng = fastrand::Rng::with_seed(8);
+        // Slabs of 71 × 81 entries: two shares each along x.
+        let dims = [6, 70, 80];
+        let set: Vec<bool> = (0..dims.iter().product()).map(|_| rng.u8(..) < 90).collect();
+        let volume = SummedVolume::new(&set, dims);
+        for _ in 0..500 {
+            let ends = |n: usize, rng: &mut fastrand::Rng| {
+                let (a, b) = (rng.usize(0..=n), rng.usize(0..=n));
+                (a.min(b), a.max(b))
+            };
+            let [(x0, x1), (y0, y1), (z0, z1)] = dims.map(|n| ends(n, &mut rng));
+            let b = VoxelBox {
+                lo: [x0, y0, z0],
+                hi: [x1, y1, z1],
+            };
+            let counted = (x0..x1)
+                .flat_map(|x| (y0..y1).flat_map(move |y| (z0..z1).map(move |z| (x * dims[1] + y) * dims[2] + z)))
+                .filter(|&i| set[i])
+                .count();
+            assert_eq!(volume.count(&b), counted, "{b:?}");
+        }
     }
 
     #[test]

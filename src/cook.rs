@@ -19,6 +19,7 @@ use crate::key::{PIPELINE_VERSION, cache_key};
 use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_components};
 use crate::occluder::boxes::{self, VoxelBox};
 use crate::occluder::exposure::OpenViews;
+use crate::occluder::select::Silhouettes;
 use crate::occluder::{
     Occluder, Panel, Shape, SurfacePiece, WorldBox, panel_mesh, patches, quads, refine, select, surface_pieces,
 };
@@ -30,7 +31,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 /// The stages of a cook, in order, for progress reports.
-pub const STAGES: [&str; 19] = [
+pub const STAGES: [&str; 20] = [
     "ingest",
     "key",
     "orient",
@@ -45,6 +46,7 @@ pub const STAGES: [&str; 19] = [
     "boxes",
     "refine",
     "exposure-boxes",
+    "silhouettes",
     "quads",
     "exposure-quads",
     "patches",
@@ -126,12 +128,18 @@ pub fn cook_with_progress(
     // costly exposure test, nothing to add. A closed mesh has no exposure test, and its in-solid
     // quads sit behind its surface, where a runtime can cull what touches the wall's far side.
     let open = !prepared.topology.boundary.is_empty();
+    // Every selection weighs pieces against the same silhouettes of the original.
+    let mut silhouettes = None;
     let alone = match open && could_be_enough(&pieces, cook.max_triangles) {
         false => None,
-        true => Some(run.stage("surface-pieces", || {
-            select_pieces(&prepared.mesh, &[], &[], &pieces, cook)
-        })?)
-        .filter(|(_, chosen)| chosen.covered >= cook.surface_enough),
+        true => {
+            let (selected, found) = run.stage("surface-pieces", || {
+                let found = Silhouettes::new(&prepared.mesh);
+                (select_pieces(&found, &prepared.mesh, &[], &[], &pieces, cook), found)
+            })?;
+            silhouettes = Some(found);
+            Some(selected).filter(|(_, chosen)| chosen.covered >= cook.surface_enough)
+        }
     };
     match alone {
         Some((occluder, chosen)) => {
@@ -139,7 +147,7 @@ pub fn cook_with_progress(
             let parts = VoxelParts::skipped(fit_grid(&prepared.mesh, cook.resolution));
             finish(run, &prepared, parts, (occluder, chosen), settings, with_eval)
         }
-        None => cook_voxels(run, &prepared, &pieces, settings, with_eval),
+        None => cook_voxels(run, &prepared, &pieces, silhouettes, settings, with_eval),
     }
 }
 
@@ -203,6 +211,7 @@ fn cook_voxels(
     mut run: Run,
     prepared: &Prepared,
     pieces: &[SurfacePiece],
+    silhouettes: Option<Silhouettes>,
     settings: &Settings,
     with_eval: bool,
 ) -> Result<Cooked, CookError> {
@@ -217,10 +226,10 @@ fn cook_voxels(
         Some(solid) => run.beside(
             "quads",
             || quads::find(mesh, cook.quad_grid, solid),
-            |run| voxel_stages(run, prepared, &grid, cook),
+            |run| voxel_stages(run, prepared, &grid, silhouettes, cook),
         )?,
         None => {
-            let voxels = voxel_stages(&mut run, prepared, &grid, cook)?;
+            let voxels = voxel_stages(&mut run, prepared, &grid, silhouettes, cook)?;
             let quads = run.kind_stage(uses(Shape::Quads), "quads", || {
                 find_quads(mesh, &grid, &voxels.inner, cook)
             })?;
@@ -235,7 +244,7 @@ fn cook_voxels(
     panels.extend(run.kind_stage(uses(Shape::Patches), "patches", || find_patches(mesh, topology, cook))?);
     // Selection merges as it goes; its last merge is the solid part of the occluder.
     let (occluder, chosen) = run.stage("select+merge", || {
-        select_pieces(mesh, &voxels.box_candidates, &panels, pieces, cook)
+        select_pieces(&voxels.silhouettes, mesh, &voxels.box_candidates, &panels, pieces, cook)
     })?;
     let inner_count = voxels.inner.iter().filter(|&&v| v).count();
     let exposed = [
@@ -274,13 +283,16 @@ struct VoxelStages {
     /// Each box candidate with the index of the voxel box it came from.
     box_sources: Vec<usize>,
     box_candidates: Vec<WorldBox>,
+    silhouettes: Silhouettes,
 }
 
-/// Voxelize, classify, remove what an opening shows, and grow and refine the boxes.
+/// Voxelize, classify, remove what an opening shows, and grow and refine the boxes; then the
+/// selection's silhouettes, unless an earlier selection found them.
 fn voxel_stages(
     run: &mut Run,
     prepared: &Prepared,
     grid: &Grid,
+    silhouettes: Option<Silhouettes>,
     cook: &CookSettings,
 ) -> Result<VoxelStages, CookError> {
     let uses = |shape: Shape| cook.shapes.contains(&shape);
@@ -311,6 +323,10 @@ fn voxel_stages(
         None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),
         Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
     };
+    let silhouettes = match silhouettes {
+        Some(found) => found,
+        None => run.stage("silhouettes", || Silhouettes::new(mesh))?,
+    };
     Ok(VoxelStages {
         surface,
         inside,
@@ -320,6 +336,7 @@ fn voxel_stages(
         voxel_boxes,
         box_sources,
         box_candidates,
+        silhouettes,
     })
 }
 
@@ -506,6 +523,7 @@ struct Chosen {
 /// is worth its extra triangles at the selection's own price (a patch's two triangles for
 /// `min_silhouette_gain`): it hides exactly what the mesh hides.
 fn select_pieces(
+    silhouettes: &Silhouettes,
     mesh: &Mesh,
     boxes: &[WorldBox],
     panels: &[Panel],
@@ -521,7 +539,13 @@ fn select_pieces(
         .map(|p| panel_mesh(std::slice::from_ref(p)))
         .chain(weighed.iter().map(|p| p.mesh()))
         .collect();
-    let selection = select::select(mesh, boxes, &sheets, cook.max_triangles, cook.min_silhouette_gain);
+    let selection = select::select(
+        silhouettes,
+        boxes,
+        &sheets,
+        cook.max_triangles,
+        cook.min_silhouette_gain,
+    );
     let whole_triangles: usize = pieces.iter().map(|p| p.triangles.len()).sum();
     let missed = 1.0 - selection.covered;
     let extra = whole_triangles.saturating_sub(selection.triangles);
@@ -832,7 +856,8 @@ mod tests {
         let stages: Vec<&str> = heard.iter().map(|(stage, _)| stage.as_str()).collect();
         assert!(heard.windows(2).all(|w| w[0].1 <= w[1].1), "{heard:?}");
         let at = |stage: &str| stages.iter().position(|s| *s == stage).expect(stage);
-        assert!(at("surface") < at("refine") && at("refine") < at("quads") && at("quads") < at("select+merge"));
+        let order = ["surface", "refine", "silhouettes", "quads", "select+merge"];
+        assert!(order.windows(2).all(|w| at(w[0]) < at(w[1])), "{stages:?}");
         let r = &cooked.report;
         assert!(r.occluder.quads > 0 && r.timings_ms.get("quads") > 0.0, "{r:?}");
         // Wall time: the ingest it was given, and the stages after.

@@ -35,9 +35,38 @@ pub struct Selection {
     pub solid: Mesh,
 }
 
+/// The original's silhouettes in the selection's views: they depend on the mesh alone, so a
+/// cook finds them while other stages run, and once for both selections it may make.
+pub struct Silhouettes {
+    views: Vec<View>,
+    /// Each view's covered pixels, a bit each.
+    masks: Vec<Vec<u64>>,
+    /// Their pixels in all.
+    pixels: u64,
+}
+
+impl Silhouettes {
+    pub fn new(mesh: &Mesh) -> Silhouettes {
+        let (center, radius) = mesh.bounding_sphere();
+        let views: Vec<View> = fibonacci_sphere(VIEWS)
+            .into_iter()
+            .map(|d| View::new(d, center, radius, PIXELS))
+            .collect();
+        let masks: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh)).collect();
+        let pixels = masks.iter().flatten().map(|w| u64::from(w.count_ones())).sum();
+        Silhouettes { views, masks, pixels }
+    }
+}
+
 /// Candidates are the boxes, then the sheets (double-sided pieces: panels and surface pieces,
 /// each costing its triangles): index `i` is a box below `boxes.len()`.
-pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: usize, min_gain: f64) -> Selection {
+pub fn select(
+    silhouettes: &Silhouettes,
+    boxes: &[WorldBox],
+    sheets: &[Mesh],
+    max_triangles: usize,
+    min_gain: f64,
+) -> Selection {
     if boxes.is_empty() && sheets.is_empty() {
         return Selection {
             boxes: Vec::new(),
@@ -48,13 +77,7 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
             solid: Mesh::default(),
         };
     }
-    let (center, radius) = mesh.bounding_sphere();
-    let views: Vec<View> = fibonacci_sphere(VIEWS)
-        .into_iter()
-        .map(|d| View::new(d, center, radius, PIXELS))
-        .collect();
-    let silhouettes: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh)).collect();
-    let total: u64 = silhouettes.iter().flatten().map(|w| u64::from(w.count_ones())).sum();
+    let (views, total, silhouettes) = (&silhouettes.views, silhouettes.pixels, &silhouettes.masks);
     let box_shapes: Vec<Mesh> = boxes.iter().map(|b| merge(std::slice::from_ref(b))).collect();
     let shapes: Vec<&Mesh> = box_shapes.iter().chain(sheets).collect();
     let costs: Vec<usize> = shapes.iter().map(|s| s.triangles.len()).collect();
@@ -68,7 +91,7 @@ pub fn select(mesh: &Mesh, boxes: &[WorldBox], sheets: &[Mesh], max_triangles: u
             let mut image = vec![0u64; silhouettes.first().map_or(0, Vec::len)];
             let mut offset = 0;
             let mut mask = Vec::new();
-            for (v, s) in views.iter().zip(&silhouettes) {
+            for (v, s) in views.iter().zip(silhouettes) {
                 for w in draw_coverage(v, shape, &mut image) {
                     if image[w] & s[w] != 0 {
                         mask.push(((offset + w) as u32, image[w] & s[w]));

@@ -45,11 +45,11 @@ pub fn voxelize(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
     voxels
 }
 
-/// The voxels of `span` along axis k, less those at either end that the box's face along k
-/// separates from the triangle: [`triangle_box_overlap`] rejects them first thing, by the same
-/// arithmetic, so only voxels that can pass are tested.
+/// The voxels of `span` along axis k, less those at either end that the box's faces along k
+/// separate from the triangle: [`triangle_box_overlap`] rejects them first thing, by the same
+/// test, so only voxels that can pass are tested.
 fn facing(tri: &[[f32; 3]; 3], k: usize, span: Range<usize>, half: f32) -> Range<usize> {
-    let apart = |x: usize| separated(tri.map(|p| p[k] - (x as f32 + 0.5)), half);
+    let apart = |x: usize| faces_apart(tri, k, x as f32 + 0.5, half);
     let (mut start, mut end) = (span.start, span.end);
     while start < end && apart(start) {
         start += 1;
@@ -66,6 +66,11 @@ fn separated<F: Float>(p: [F; 3], r: F) -> bool {
     lo > r || hi < -r
 }
 
+/// Whether the faces along axis k of a box `center ± half` there separate it from `tri`.
+fn faces_apart<F: Float>(tri: &[[F; 3]; 3], k: usize, center: F, half: F) -> bool {
+    separated(tri.map(|p| p[k] - center), half)
+}
+
 fn sub<F: Float>(a: [F; 3], b: [F; 3]) -> [F; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -73,13 +78,11 @@ fn sub<F: Float>(a: [F; 3], b: [F; 3]) -> [F; 3] {
 /// Whether triangle `tri` meets the closed box `center ± half` (Akenine-Möller 2001), at any
 /// float precision. The order of every operation matches the shader's.
 pub fn triangle_box_overlap<F: Float>(center: [F; 3], half: [F; 3], tri: &[[F; 3]; 3]) -> bool {
-    let [a, b, d] = tri.map(|p| sub(p, center));
     // The box's face normals.
-    for k in 0..3 {
-        if separated([a[k], b[k], d[k]], half[k]) {
-            return false;
-        }
+    if (0..3).any(|k| faces_apart(tri, k, center[k], half[k])) {
+        return false;
     }
+    let [a, b, d] = tri.map(|p| sub(p, center));
     let edges = [sub(b, a), sub(d, b), sub(a, d)];
     let (e0, e1) = (edges[0], edges[1]);
     // The triangle's plane.
@@ -112,12 +115,11 @@ mod tests {
 
     /// Every voxel of the grid tested against every triangle: what `voxelize` must mark.
     fn touched_one_by_one(mesh: &Mesh, grid: &Grid) -> Vec<bool> {
-        let [_, ny, nz] = grid.dims;
         let half = [0.5 + SLACK; 3];
         let mut voxels = vec![false; grid.len()];
         for tri in grid.local_triangles(mesh) {
             for (v, voxel) in voxels.iter_mut().enumerate() {
-                let centre = [v / (ny * nz), v / nz % ny, v % nz].map(|c| c as f32 + 0.5);
+                let centre = grid.coords(v).map(|c| c as f32 + 0.5);
                 *voxel |= triangle_box_overlap(centre, half, &tri);
             }
         }

@@ -89,21 +89,29 @@ impl AxisGrid {
         (x - self.origin[k]) / self.cell
     }
 
-    /// The lines along grid axis k (as indices for [`AxisGrid::line`]) within [lo, hi], in
-    /// cells from the origin ([`AxisGrid::cells_along`]), give or take rounding. Without
-    /// rounding calls: the coordinates are never below the origin.
-    fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::RangeInclusive<usize> {
-        ceil_index(lo)..=floor_index(hi).min(self.dims[k])
+    /// A grid point's place among the cells: its first two coordinates in cells from the origin.
+    fn place_of(&self, p: &[f64; 3]) -> [f64; 2] {
+        [self.cells_along(0, p[0]), self.cells_along(1, p[1])]
     }
 
-    /// Cells whose closed footprint meets [lo, hi] along grid axis k, in cells from the origin.
-    fn range(&self, k: usize, lo: f64, hi: f64) -> std::ops::Range<usize> {
+    /// Cells whose closed footprint meets the bounds of `places` along grid axis k.
+    fn range_of(&self, k: usize, places: &[[f64; 2]; 3]) -> std::ops::Range<usize> {
+        let (lo, hi) = places.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p[k]), hi.max(p[k]))
+        });
         let a = ceil_index(lo - 1.0);
         let b = match hi {
             f if f < 0.0 => 0,
             f => (floor_index(f) + 1).min(self.dims[k]),
         };
         a.min(b)..b
+    }
+
+    /// The lines along grid axis k (as indices for [`AxisGrid::line`]) within [lo, hi], in
+    /// cells from the origin ([`AxisGrid::cells_along`]), give or take rounding. Without
+    /// rounding calls: the coordinates are never below the origin.
+    fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::RangeInclusive<usize> {
+        ceil_index(lo)..=floor_index(hi).min(self.dims[k])
     }
 }
 
@@ -299,10 +307,7 @@ struct Block {
 fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Block>> {
     let nv = g.dims[1];
     // Each corner's place among the cells, once rather than in each of its triangles.
-    let in_cells: Vec<[f64; 2]> = corners
-        .iter()
-        .map(|p| [g.cells_along(0, p[0]), g.cells_along(1, p[1])])
-        .collect();
+    let in_cells: Vec<[f64; 2]> = corners.iter().map(|p| g.place_of(p)).collect();
     (0..mesh.triangles.len())
         .into_par_iter()
         .fold(
@@ -317,13 +322,7 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
                 };
                 let lo = |k: usize| tri.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
                 let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
-                let range = |k: usize| {
-                    let (lo, hi) = places.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-                        (lo.min(p[k]), hi.max(p[k]))
-                    });
-                    g.range(k, lo, hi)
-                };
-                let (ru, rv) = (range(0), range(1));
+                let (ru, rv) = (g.range_of(0, &places), g.range_of(1, &places));
                 if ru.len() == 1 && rv.len() == 1 {
                     // Wholly inside one cell.
                     out.push(block(ru.start * nv + rv.start, (lo(2), hi(2))));
@@ -365,10 +364,11 @@ type Along = (usize, bool);
 
 impl CellHeights {
     /// The heights of `tri` over the cells from `first`, `cells` along each axis: those whose
-    /// closed footprints its bounds meet. `places` are its corners in cells from the origin. Over a cell, the height is linear on the part of the
-    /// triangle in it, so its extremes lie at that part's corners: the triangle's own corners,
-    /// where its edges cross the lines between cells, and where two such lines cross inside
-    /// it. Each of those points counts in every cell whose closed footprint holds it.
+    /// closed footprints its bounds meet; `places` are its corners' ([`AxisGrid::place_of`]).
+    /// Over a cell, the height is linear on the part of the triangle in it, so its extremes lie
+    /// at that part's corners: the triangle's own corners, where its edges cross the lines
+    /// between cells, and where two such lines cross inside it. Each of those points counts in
+    /// every cell whose closed footprint holds it.
     fn of_triangle(
         &mut self,
         tri: &[[f64; 3]; 3],
@@ -995,14 +995,8 @@ mod tests {
                 let wall = coordinate(&mut rng);
                 tri.iter_mut().for_each(|p| p[k] = wall);
             }
-            let places = tri.map(|p| [g.cells_along(0, p[0]), g.cells_along(1, p[1])]);
-            let bounds = |k: usize| {
-                let (lo, hi) = places.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-                    (lo.min(p[k]), hi.max(p[k]))
-                });
-                g.range(k, lo, hi)
-            };
-            let (ru, rv) = (bounds(0), bounds(1));
+            let places = tri.map(|p| g.place_of(&p));
+            let (ru, rv) = (g.range_of(0, &places), g.range_of(1, &places));
             cells.of_triangle(&tri, &places, &g, [ru.start, rv.start], [ru.len(), rv.len()]);
             let width = rv.len() + 2;
             let each = ru.clone().flat_map(|u| rv.clone().map(move |v| (u, v)));

@@ -322,10 +322,15 @@ impl OpenViews {
     /// pixel around.
     fn farthest_over(&self, v: usize, lo: DVec3, hi: DVec3) -> f32 {
         let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
-        let tiles = PIXELS / TILE;
-        let far = &self.tiles[v * tiles * tiles..(v + 1) * tiles * tiles];
-        rows.flat_map(|ty| columns.clone().map(move |tx| far[ty * tiles + tx]))
+        let far = self.tiles_of(v);
+        rows.flat_map(|ty| columns.clone().map(move |tx| far[ty * (PIXELS / TILE) + tx]))
             .fold(0f32, f32::max)
+    }
+
+    /// View `v`'s farthest depth of each tile, a row of tiles after another.
+    fn tiles_of(&self, v: usize) -> &[f32] {
+        let tiles = (PIXELS / TILE).pow(2);
+        &self.tiles[v * tiles..(v + 1) * tiles]
     }
 
     /// [`OpenViews::seen_corners`] on the GPU.
@@ -466,8 +471,7 @@ impl OpenViews {
         // depth of every tile under its screen bounds shows nowhere.
         let farthest = self.farthest_over(v, lo, hi);
         let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
-        let tiles = PIXELS / TILE;
-        let far = &self.tiles[v * tiles * tiles..(v + 1) * tiles * tiles];
+        let (tiles, far) = (PIXELS / TILE, self.tiles_of(v));
         let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
         if on_screen && lo.z >= f64::from(farthest) - tolerance {
             return;

@@ -129,6 +129,11 @@ impl Curtain {
     /// edge, the points' products grow side by side, none waiting on the last multiplication,
     /// without a branch, so that the points go through in vector lanes.
     pub fn terms(&self, points: &[DVec3]) -> Vec<f64> {
+        self.terms_by(points, Curtain::add_edges_fast)
+    }
+
+    /// [`Curtain::terms`], the edges added by `add_edges`.
+    fn terms_by(&self, points: &[DVec3], add_edges: impl Fn(&Self, &mut Angles, &[f64])) -> Vec<f64> {
         let n = points.len();
         if n == 0 {
             return Vec::new();
@@ -140,7 +145,7 @@ impl Curtain {
             }
         }
         let mut angles = Angles::new(points);
-        self.add_edges_fast(&mut angles, &distances);
+        add_edges(self, &mut angles, &distances);
         // Ω = 2·(half angles), w = Ω / 4π.
         angles.radians().map(|radians| radians / PI * 0.5).collect()
     }
@@ -425,16 +430,8 @@ mod tests {
             assert_eq!(term.to_bits(), curtain.term(*p).to_bits());
         }
         // The portable lanes, against those `terms` chose.
-        let n = points.len();
-        let distances: Vec<f64> = curtain
-            .vertices
-            .iter()
-            .flat_map(|&v| points.iter().map(move |&p| (v - p).length()))
-            .collect();
-        let mut angles = Angles::new(&points);
-        curtain.add_edges(&mut angles, &distances);
-        let portable: Vec<f64> = angles.radians().map(|radians| radians / PI * 0.5).collect();
-        assert_eq!(portable.len(), n);
+        let portable = curtain.terms_by(&points, Curtain::add_edges);
+        assert_eq!(portable.len(), points.len());
         assert!(portable.iter().zip(&together).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 }

@@ -12,7 +12,7 @@ const UNIFORM_EDGES: u32 = 2048u;
 @group(0) @binding(3) var<uniform> boundary: array<vec4<f32>, 4096>;
 @group(0) @binding(6) var<storage, read> more_boundary: array<vec4<f32>>;
 // A bit a voxel, set for inside: a 32nd of the bytes to read back that a word a voxel takes.
-// A word may hold the ends of two columns, so bits are set atomically.
+// Threads share words (columns and runs of a column end mid-word), so bits are set atomically.
 @group(0) @binding(5) var<storage, read_write> inside: array<atomic<u32>>;
 
 fn mark_inside(voxel: u32, is_inside: bool) {

@@ -162,9 +162,11 @@ impl SummedVolume {
             }
         });
         // Then along x: a share of each slab's entries at a time, through every slab in turn.
-        let slab = sy * sz;
-        let mut shares: Vec<Vec<&mut [u32]>> = (0..slab.div_ceil(SUM_SHARE)).map(|_| Vec::with_capacity(sx)).collect();
-        for slab in sums.chunks_mut(slab) {
+        let entries = sy * sz;
+        let mut shares: Vec<Vec<&mut [u32]>> = (0..entries.div_ceil(SUM_SHARE))
+            .map(|_| Vec::with_capacity(sx))
+            .collect();
+        for slab in sums.chunks_mut(entries) {
             for (share, part) in shares.iter_mut().zip(slab.chunks_mut(SUM_SHARE)) {
                 share.push(part);
             }

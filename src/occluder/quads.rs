@@ -17,7 +17,7 @@
 use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape};
 use crate::geom::buckets::Buckets;
-use crate::geom::{ceil_index, floor_index, index_to_f64};
+use crate::geom::{ceil_index, floor_index, greater, index_to_f64, lesser};
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
 use glam::{DQuat, DVec3};
@@ -97,7 +97,7 @@ impl AxisGrid {
     /// Cells whose closed footprint meets the bounds of `places` along grid axis k.
     fn range_of(&self, k: usize, places: &[[f64; 2]; 3]) -> std::ops::Range<usize> {
         let (lo, hi) = places.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(p[k]), hi.max(p[k]))
+            (lesser(lo, p[k]), greater(hi, p[k]))
         });
         let a = ceil_index(lo - 1.0);
         let b = match hi {
@@ -209,7 +209,7 @@ fn inside_gaps(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, margin: f64, sol
                     if top > f64::NEG_INFINITY && t0 - top > 2.0 * margin {
                         found.push((k, Gap { lo: top, hi: t0 }));
                     }
-                    top = top.max(t1);
+                    top = greater(top, t1);
                 }
                 inside.clear();
                 match solid {
@@ -460,7 +460,7 @@ impl CellHeights {
         let at = u.0 * width + v.0;
         let mut put = |i: usize| {
             let h = &mut self.heights[i];
-            *h = (h.0.min(t), h.1.max(t));
+            *h = (lesser(h.0, t), greater(h.1, t));
         };
         put(at);
         if v.1 {

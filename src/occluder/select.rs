@@ -6,6 +6,7 @@
 use super::{WorldBox, merge::merge};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::raster::{coverage_mask, draw_coverage};
+use crate::geom::with_popcnt;
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 use std::cmp::{Ordering, Reverse};
@@ -138,6 +139,15 @@ pub fn select(
 
 /// The nonzero words of a bitmask: (word index, bits).
 type SparseMask = Vec<(u32, u64)>;
+
+/// The pixels of `mask` that `covered` lacks: most of the greedy fill's time.
+fn new_pixels(mask: &[(u32, u64)], covered: &[u64]) -> u64 {
+    with_popcnt(|| {
+        mask.iter()
+            .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
+            .sum()
+    })
+}
 
 /// New pixels per triangle.
 fn ratio(pixels: u64, triangles: usize) -> f64 {
@@ -326,10 +336,7 @@ impl State<'_> {
 
     /// Silhouette pixels that candidate `i` covers and `covered` does not.
     fn gain(&self, covered: &[u64], i: usize) -> u64 {
-        self.masks[i]
-            .iter()
-            .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
-            .sum()
+        new_pixels(&self.masks[i], covered)
     }
 
     /// The untaken sheet within the budget with the most new pixels per triangle, if it adds

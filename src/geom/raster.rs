@@ -6,7 +6,7 @@ pub mod covered;
 pub mod gpu;
 
 use crate::geom::camera::{Lens, View};
-use crate::geom::{ceil_index, floor_index, index_to_f64, lesser};
+use crate::geom::{ceil_index, floor_index, index_to_f64};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
@@ -568,12 +568,7 @@ pub fn depth_image(view: &View, mesh: &Mesh) -> Vec<f32> {
 pub fn draw_depth(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) {
     depth.clear();
     depth.resize(view.pixels * view.pixels, f32::INFINITY);
-    rasterize_mesh(view, mesh, nearest_in(depth));
-}
-
-/// A visitor for the rasterizers that keeps each pixel's nearest depth in `image`.
-pub fn nearest_in(image: &mut [f32]) -> impl FnMut(usize, f64) + '_ {
-    |i, d| image[i] = lesser(image[i], d as f32)
+    rasterize_mesh(view, mesh, |i, d| depth[i] = depth[i].min(d as f32));
 }
 
 /// Depth images of `mesh` in `views`: on `gpu` where one is given, else on the CPU.

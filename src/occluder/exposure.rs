@@ -25,7 +25,7 @@ pub mod gpu;
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::{self, draw_depth, nearest_in, rasterize, rasterize_eroded, rasterize_within};
+use crate::geom::raster::{self, draw_depth, rasterize, rasterize_eroded, rasterize_within};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
@@ -128,7 +128,7 @@ impl OpenViews {
         let finish = |view: &View, image: &mut [f32], out: &mut [f32]| {
             for (&t, &eroded) in &cracked {
                 let triangle = mesh.corners(t).map(|p| p.as_dvec3());
-                rasterize_eroded(view, &triangle, eroded, nearest_in(image));
+                rasterize_eroded(view, &triangle, eroded, |i, d| image[i] = image[i].min(d as f32));
             }
             farthest_nearby(image, PIXELS, out);
         };

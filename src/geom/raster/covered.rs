@@ -4,7 +4,7 @@
 //! screen and the pixel lies inside both triangles' other edges. Without the second rule every
 //! wall split into triangles would show a line of open pixels along each diagonal.
 
-use super::{nearest_in, rasterize_inner};
+use super::rasterize_inner;
 use crate::geom::camera::View;
 use crate::mesh::{Mesh, weld_positions};
 use glam::{DVec2, DVec3};
@@ -69,10 +69,10 @@ impl<'a> Occluder<'a> {
         let n = view.pixels;
         let mut depth = vec![f32::INFINITY; n * n];
         for tri in self.mesh.triangles_f64() {
-            rasterize_inner(view, &tri, nearest_in(&mut depth));
+            rasterize_inner(view, &tri, |i, d| depth[i] = depth[i].min(d as f32));
         }
         for pair in &self.pairs {
-            across(view, pair, nearest_in(&mut depth));
+            across(view, pair, |i, d| depth[i] = depth[i].min(d as f32));
         }
         depth
     }
@@ -174,7 +174,7 @@ mod tests {
         let mesh = wall();
         let mut alone = vec![f32::INFINITY; 64 * 64];
         for tri in mesh.triangles_f64() {
-            rasterize_inner(&view, &tri, nearest_in(&mut alone));
+            rasterize_inner(&view, &tri, |i, d| alone[i] = alone[i].min(d as f32));
         }
         let covered = Occluder::new(&mesh).depth(&view);
         let count = |d: &[f32]| d.iter().filter(|v| v.is_finite()).count();
@@ -198,7 +198,7 @@ mod tests {
         let view = View::perspective(DVec3::ZERO, DVec3::Z, 64, 1e-3);
         let mut alone = vec![f32::INFINITY; 64 * 64];
         for tri in mesh.triangles_f64() {
-            rasterize_inner(&view, &tri, nearest_in(&mut alone));
+            rasterize_inner(&view, &tri, |i, d| alone[i] = alone[i].min(d as f32));
         }
         assert_eq!(Occluder::new(&mesh).depth(&view), alone);
     }

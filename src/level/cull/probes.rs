@@ -13,7 +13,7 @@
 use super::{ScreenBox, box_on_screen, depth_tolerance, fully_behind};
 use crate::geom::camera::View;
 use crate::geom::raster::covered::Occluder;
-use crate::geom::raster::{depth_image, rasterize};
+use crate::geom::raster::{rasterize, rasterize_mesh};
 use crate::level::free_space::{Pose, Probe};
 use crate::mesh::{Mesh, point_bounds};
 use crate::occluder::{WorldBox, merge::merge};
@@ -169,7 +169,8 @@ fn visible_probes(
     in_view: impl Iterator<Item = usize>,
 ) -> Vec<bool> {
     let n = view.pixels;
-    let depth = depth_image(view, map);
+    let mut depth = vec![f32::INFINITY; n * n];
+    rasterize_mesh(view, map, |i, d| depth[i] = depth[i].min(d as f32));
     in_view
         .map(|i| {
             let (lo, hi) = boxes[i];

@@ -220,20 +220,26 @@ fn cook_voxels(
     let (mesh, topology) = (&prepared.mesh, &prepared.topology);
     run.open_device(cook.device)?;
     let grid = fit_grid(mesh, cook.resolution);
-    let (voxels, quads_found) = match closed_solid(topology, cook).filter(|_| uses(Shape::Quads)) {
-        // Their own crossings decide the quads of a closed mesh, so they are found beside the
-        // voxel stages.
-        Some(solid) => run.beside(
-            "quads",
-            || quads::find(mesh, cook.quad_grid, solid),
-            |run| voxel_stages(run, prepared, &grid, silhouettes, cook),
-        )?,
+    // Stages that need nothing the voxel stages make are found beside them: the quads of a
+    // closed mesh, which its own crossings decide, and an open mesh's patches.
+    let (voxels, quads_found, patches_found) = match closed_solid(topology, cook).filter(|_| uses(Shape::Quads)) {
+        Some(solid) => {
+            let (voxels, (quads, ms)) = run.beside(
+                || quads::find(mesh, cook.quad_grid, solid),
+                |run| voxel_stages(run, prepared, &grid, silhouettes, cook),
+            )?;
+            run.heard("quads", ms)?;
+            (voxels, quads, None)
+        }
         None => {
-            let voxels = voxel_stages(&mut run, prepared, &grid, silhouettes, cook)?;
+            let (voxels, (patches, ms)) = run.beside(
+                || uses(Shape::Patches).then(|| find_patches(mesh, topology, cook)),
+                |run| voxel_stages(run, prepared, &grid, silhouettes, cook),
+            )?;
             let quads = run.kind_stage(uses(Shape::Quads), "quads", || {
                 find_quads(mesh, &grid, &voxels.inner, cook)
             })?;
-            (voxels, quads)
+            (voxels, quads, patches.map(|patches| (patches, ms)))
         }
     };
     let quad_count = quads_found.len();
@@ -241,7 +247,13 @@ fn cook_voxels(
         None => (quads_found, [0, 0]),
         Some(views) => run.stage("exposure-quads", || unexposed_quads(views, quads_found))?,
     };
-    panels.extend(run.kind_stage(uses(Shape::Patches), "patches", || find_patches(mesh, topology, cook))?);
+    panels.extend(match patches_found {
+        Some((patches, ms)) => {
+            run.heard("patches", ms)?;
+            patches
+        }
+        None => run.kind_stage(uses(Shape::Patches), "patches", || find_patches(mesh, topology, cook))?,
+    });
     // Selection merges as it goes; its last merge is the solid part of the occluder.
     let (occluder, chosen) = run.stage("select+merge", || {
         select_pieces(&voxels.silhouettes, mesh, &voxels.box_candidates, &panels, pieces, cook)
@@ -648,27 +660,31 @@ impl<'a> Run<'a> {
         Ok(out)
     }
 
-    /// Runs `main` and, on another thread meanwhile, `beside`: a CPU stage named `stage` that
-    /// needs nothing `main` makes. Progress hears of it once `main` is done, in its place in
-    /// the order. Each stage is timed as it ran, so their times add up to more than the wall
-    /// time, which the report gives as `cook_ms`.
+    /// Runs `main` and, on another thread meanwhile, `beside`: a CPU stage that needs nothing
+    /// `main` makes. Returns its result with the milliseconds it took, for [`Run::heard`] to
+    /// report in its place in the order. Each stage is timed as it ran, so their times add up
+    /// to more than the wall time, which the report gives as `cook_ms`.
     fn beside<A: Send, B: Send>(
         &mut self,
-        stage: &str,
         beside: impl FnOnce() -> B + Send,
         main: impl FnOnce(&mut Self) -> Result<A, CookError> + Send,
-    ) -> Result<(A, B), CookError> {
-        let (main, (beside, ms)) = rayon::join(
+    ) -> Result<(A, (B, f64)), CookError> {
+        let (main, beside) = rayon::join(
             || main(self),
             || {
                 let start = Instant::now();
                 (beside(), start.elapsed().as_secs_f64() * 1e3)
             },
         );
-        let main = main?;
+        Ok((main?, beside))
+    }
+
+    /// Reports `stage`, run [`Run::beside`] others in `ms`, as starting now: progress hears of
+    /// it in its place.
+    fn heard(&mut self, stage: &str, ms: f64) -> Result<(), CookError> {
         self.start(stage)?;
         self.timings.add(stage, ms);
-        Ok((main, beside))
+        Ok(())
     }
 
     /// A stage that finds pieces of one kind: none, and not run, when `cook.shapes` leaves that
@@ -842,26 +858,49 @@ const PIPELINES: [&[(&str, &str)]; 5] = [
 mod tests {
     use super::*;
 
-    #[test]
-    fn quads_found_beside_the_voxel_stages_are_reported_in_their_place() {
+    /// The stages heard, in order, as a cook of `mesh` reports them, with its report.
+    fn heard_stages(mesh: Mesh) -> (Vec<String>, Report) {
         let settings = crate::config::load(None, &[]).expect("defaults load");
         let heard = std::sync::Mutex::new(Vec::new());
         let progress = |stage: &str, done: f64| {
             heard.lock().unwrap().push((stage.to_string(), done));
             Ok(())
         };
-        let mesh = crate::mesh::shapes::torus(1.0, 0.45, 32, 16);
         let cooked = cook_with_progress(mesh, Default::default(), 2.0, &settings, false, &progress).expect("cooks");
         let heard = heard.into_inner().unwrap();
-        let stages: Vec<&str> = heard.iter().map(|(stage, _)| stage.as_str()).collect();
         assert!(heard.windows(2).all(|w| w[0].1 <= w[1].1), "{heard:?}");
-        let at = |stage: &str| stages.iter().position(|s| *s == stage).expect(stage);
-        let order = ["surface", "refine", "silhouettes", "quads", "select+merge"];
+        (heard.into_iter().map(|(stage, _)| stage).collect(), cooked.report)
+    }
+
+    fn in_order(stages: &[String], order: &[&str]) {
+        let at = |stage: &str| stages.iter().position(|s| s == stage).expect(stage);
         assert!(order.windows(2).all(|w| at(w[0]) < at(w[1])), "{stages:?}");
-        let r = &cooked.report;
+    }
+
+    #[test]
+    fn quads_found_beside_the_voxel_stages_are_reported_in_their_place() {
+        let (stages, r) = heard_stages(crate::mesh::shapes::torus(1.0, 0.45, 32, 16));
+        in_order(&stages, &["surface", "refine", "silhouettes", "quads", "select+merge"]);
         assert!(r.occluder.quads > 0 && r.timings_ms.get("quads") > 0.0, "{r:?}");
         // Wall time: the ingest it was given, and the stages after.
         assert!(r.cook_ms > 2.0 && r.total_ms() == r.cook_ms, "{}", r.cook_ms);
+    }
+
+    #[test]
+    fn an_open_meshs_patches_found_beside_the_voxel_stages_are_reported_in_their_place() {
+        let mut open = crate::mesh::shapes::torus(1.0, 0.45, 32, 16);
+        open.triangles.drain(0..4);
+        let (stages, r) = heard_stages(open);
+        let order = [
+            "exposure-render",
+            "silhouettes",
+            "quads",
+            "exposure-quads",
+            "patches",
+            "select+merge",
+        ];
+        in_order(&stages, &order);
+        assert!(r.timings_ms.get("patches") > 0.0, "{r:?}");
     }
 
     #[test]

@@ -34,18 +34,18 @@ pub fn ceil_index(v: f64) -> usize {
     below as usize + usize::from(f64::from(below) < v)
 }
 
-// The floats' `min` and `max` also handle a NaN on either side, which costs a compare and a
-// blend each; a running bound is never NaN, and one instruction does.
+// `f64::min` and `max` also handle a NaN on either side, which costs a compare and a blend
+// each; a running bound is never NaN, and one instruction does.
 
 /// The lesser of `a` and `b`, `a` on a tie or where `b` is NaN, as `min` would; `a` is not NaN.
 #[inline(always)]
-pub fn lesser<T: PartialOrd>(a: T, b: T) -> T {
+pub fn lesser(a: f64, b: f64) -> f64 {
     if b < a { b } else { a }
 }
 
 /// The greater of `a` and `b`, `a` on a tie or where `b` is NaN, as `max` would; `a` is not NaN.
 #[inline(always)]
-pub fn greater<T: PartialOrd>(a: T, b: T) -> T {
+pub fn greater(a: f64, b: f64) -> f64 {
     if b > a { b } else { a }
 }
 

@@ -140,15 +140,6 @@ pub fn select(
 /// The nonzero words of a bitmask: (word index, bits).
 type SparseMask = Vec<(u32, u64)>;
 
-/// The pixels of `mask` that `covered` lacks: most of the greedy fill's time.
-fn new_pixels(mask: &[(u32, u64)], covered: &[u64]) -> u64 {
-    with_popcnt(|| {
-        mask.iter()
-            .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
-            .sum()
-    })
-}
-
 /// New pixels per triangle.
 fn ratio(pixels: u64, triangles: usize) -> f64 {
     pixels as f64 / triangles.max(1) as f64
@@ -334,9 +325,15 @@ impl State<'_> {
         weighed.into_iter().map(|(gain, Reverse(i))| (i, gain)).collect()
     }
 
-    /// Silhouette pixels that candidate `i` covers and `covered` does not.
+    /// Silhouette pixels that candidate `i` covers and `covered` does not: most of the greedy
+    /// fill's time.
     fn gain(&self, covered: &[u64], i: usize) -> u64 {
-        new_pixels(&self.masks[i], covered)
+        with_popcnt(|| {
+            self.masks[i]
+                .iter()
+                .map(|&(w, bits)| u64::from((bits & !covered[w as usize]).count_ones()))
+                .sum()
+        })
     }
 
     /// The untaken sheet within the budget with the most new pixels per triangle, if it adds

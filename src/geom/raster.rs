@@ -6,7 +6,7 @@ pub mod covered;
 pub mod gpu;
 
 use crate::geom::camera::{Lens, View};
-use crate::geom::{ceil_index, floor_index, index_to_f64};
+use crate::geom::{ceil_index, floor_index, greater, index_to_f64, lesser};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
@@ -385,38 +385,42 @@ impl Rows {
             return;
         }
         // Along a row each edge's function is monotone, rounding and all: an edge whose function
-        // rises towards the triangle's side only starts to hold, the others only stop. The run
-        // of pixels drawn starts where the last rising edge holds, searched for, and ends before
-        // the first other edge stops holding: searched for too for a sink of runs or a long row,
-        // else found as the pixels are drawn (most runs of a detailed mesh are a pixel or two
-        // long). A search bisects, or on a wide triangle starts from where the edges cross the
-        // row ([`first_where_near`]).
+        // rises towards the triangle's side only starts to hold, the others only stop. Where the
+        // edges cross the row leaves a few candidate pixels ([`row_span`]), none on most rows of
+        // a sliver. Among them, the run of pixels drawn starts where the last rising edge holds,
+        // searched for, and ends before the first other edge stops holding: searched for too for
+        // a sink of runs or a long row, else found as the pixels are drawn (most runs of a
+        // detailed mesh are a pixel or two long). Searches start at the candidates' ends
+        // ([`first_where_near`]).
         let rising = edges.map(|(e, _)| e.y * area < 0.0);
-        let slopes = (x1 - x0 >= WIDE).then(|| edges.map(|(e, _)| 1.0 / e.y));
+        let slopes = edges.map(|(e, _)| 1.0 / e.y);
         for y in span.y.0..=span.y.1 {
             let row = rows(y);
+            let Some((lo, hi)) = row_span(&edges, row, rising, slopes, span.x) else {
+                continue;
+            };
             let function = in_row(row);
-            let (starts, ends) = run_guesses(&edges, row, rising, slopes);
-            let first = first_where_near(x0, x1 + 1, starts, |x| {
+            let first = first_where_near(lo, hi + 1, index_to_f64(lo), |x| {
                 (0..3).all(|k| !rising[k] || holds(k, function(k, x)))
             });
             let ends_after = |x| (0..3).any(|k| !rising[k] && !holds(k, function(k, x)));
+            let past = index_to_f64(hi + 1);
             if V::RUNS {
-                let end = first_where_near(first, x1 + 1, ends, ends_after);
+                let end = first_where_near(first, hi + 1, past, ends_after);
                 if first < end {
                     visit.run(y * view.pixels, first..=end - 1);
                 }
                 continue;
             }
             let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
-            if x1 + 1 - first >= LONG_ROW {
+            if hi + 1 - first >= LONG_ROW {
                 // A long row's end is searched for too, and its pixels drawn without tests.
-                for x in first..first_where_near(first, x1 + 1, ends, ends_after) {
+                for x in first..first_where_near(first, hi + 1, past, ends_after) {
                     visit.pixel(y * view.pixels + x, depth_at(at(x)));
                 }
                 continue;
             }
-            for x in first..=x1 {
+            for x in first..=hi {
                 let f = at(x);
                 if !(0..3).all(|k| holds(k, f[k])) {
                     break;
@@ -433,27 +437,35 @@ const SMALL: usize = 4;
 /// Pixels left in a row from which a depth image's run end is searched for.
 const LONG_ROW: usize = 8;
 
-/// Candidate pixels from which a row's searches start from where its edges cross it.
-const WIDE: usize = 8;
-
-/// Where a row's run of pixels may start and end (one past it): where each edge's function
-/// crosses 0 along the row, `o.x - 0.5 + row / e.y`, near enough to start the searches from, as
-/// they check every guess with the functions themselves. No guess (NaN) without the edges'
-/// `slopes` (1 / e.y), which only a wide triangle pays for.
-fn run_guesses(edges: &[(DVec2, DVec2); 3], row: [f64; 3], rising: [bool; 3], slopes: Option<[f64; 3]>) -> (f64, f64) {
-    let Some(slopes) = slopes else {
-        return (f64::NAN, f64::NAN);
-    };
-    let (mut starts, mut ends) = (f64::NEG_INFINITY, f64::INFINITY);
+/// The pixels of `x0..=x1` that a row can draw, or none: those that every edge's crossing of the
+/// row, `o.x - 0.5 + row / e.y` with `slopes` 1 / e.y, leaves on its side. Rounding moves a
+/// crossing, and the sign of the edge's function near it, by a few parts in 10¹⁶ of the numbers
+/// involved; each crossing is widened by a millionth of a pixel and a millionth of a millionth of
+/// them, so every pixel left out fails some edge's test, eroded or not (an eroded test holds only
+/// where the plain one does). A crossing that is not a number bounds nothing.
+fn row_span(
+    edges: &[(DVec2, DVec2); 3],
+    row: [f64; 3],
+    rising: [bool; 3],
+    slopes: [f64; 3],
+    (x0, x1): (usize, usize),
+) -> Option<(usize, usize)> {
+    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
     for (k, &rises) in rising.iter().enumerate() {
-        let crossing = edges[k].1.x - 0.5 + row[k] * slopes[k];
+        let o = edges[k].1.x;
+        let crossing = o - 0.5 + row[k] * slopes[k];
+        let slack = 1e-6 + 1e-12 * (crossing.abs() + o.abs());
         if rises {
-            starts = starts.max(crossing);
+            lo = greater(lo, crossing - slack);
         } else {
-            ends = ends.min(crossing);
+            hi = lesser(hi, crossing + slack);
         }
     }
-    (starts.ceil(), ends.floor() + 1.0)
+    if hi < 0.0 {
+        return None;
+    }
+    let (first, last) = (ceil_index(lo).max(x0), floor_index(hi).min(x1));
+    (first <= last).then_some((first, last))
 }
 
 /// [`first_where`], searched outwards from `guess`, the step doubling, then bisected: the same

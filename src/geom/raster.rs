@@ -400,13 +400,12 @@ impl Rows {
                 continue;
             };
             let function = in_row(row);
-            let first = first_where_near(lo, hi + 1, index_to_f64(lo), |x| {
+            let first = first_where_near(lo, hi + 1, lo, |x| {
                 (0..3).all(|k| !rising[k] || holds(k, function(k, x)))
             });
             let ends_after = |x| (0..3).any(|k| !rising[k] && !holds(k, function(k, x)));
-            let past = index_to_f64(hi + 1);
             if V::RUNS {
-                let end = first_where_near(first, hi + 1, past, ends_after);
+                let end = first_where_near(first, hi + 1, hi + 1, ends_after);
                 if first < end {
                     visit.run(y * view.pixels, first..=end - 1);
                 }
@@ -415,7 +414,7 @@ impl Rows {
             let at = |x: usize| -> [f64; 3] { std::array::from_fn(|k| function(k, x)) };
             if hi + 1 - first >= LONG_ROW {
                 // A long row's end is searched for too, and its pixels drawn without tests.
-                for x in first..first_where_near(first, hi + 1, past, ends_after) {
+                for x in first..first_where_near(first, hi + 1, hi + 1, ends_after) {
                     visit.pixel(y * view.pixels + x, depth_at(at(x)));
                 }
                 continue;
@@ -469,18 +468,11 @@ fn row_span(
 }
 
 /// [`first_where`], searched outwards from `guess`, the step doubling, then bisected: the same
-/// answer for any guess, in a few tests when it is near. With no guess (NaN), plain bisection.
-fn first_where_near(from: usize, to: usize, guess: f64, test: impl Fn(usize) -> bool) -> usize {
-    if guess.is_nan() {
-        return first_where(from, to, test);
-    }
+/// answer for any guess, in a few tests when it is near.
+fn first_where_near(from: usize, to: usize, guess: usize, test: impl Fn(usize) -> bool) -> usize {
     // Past `to` counts as holding, as `first_where` answers `to` where nothing holds.
     let holds = |x: usize| x >= to || test(x);
-    let start = if guess >= index_to_f64(to) {
-        to
-    } else {
-        floor_index(guess).max(from)
-    };
+    let start = guess.min(to).max(from);
     let mut step = 1;
     if holds(start) {
         let mut held = start;
@@ -673,12 +665,10 @@ mod tests {
             let from = rng.usize(0..300);
             let to = from + rng.usize(0..300);
             let threshold = rng.usize(from.saturating_sub(5)..to + 5);
-            let guess = match rng.usize(0..6) {
-                0 => f64::NAN,
-                1 => f64::INFINITY,
-                2 => f64::NEG_INFINITY,
-                3 => threshold as f64 + rng.f64() * 4.0 - 2.0,
-                _ => rng.f64() * 700.0 - 50.0,
+            let guess = match rng.usize(0..4) {
+                0 => usize::MAX,
+                1 => (threshold + rng.usize(0..5)).saturating_sub(2),
+                _ => rng.usize(0..700),
             };
             let test = |x: usize| x >= threshold;
             assert_eq!(

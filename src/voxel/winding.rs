@@ -163,45 +163,45 @@ impl Curtain {
     }
 
     /// [`Curtain::terms`], the edges added by `add_edges`.
-    fn terms_by(&self, points: &[DVec3], add_edges: impl Fn(&Self, &mut Angles, &[f64])) -> Vec<f64> {
-        let n = points.len();
-        if n == 0 {
+    fn terms_by(&self, points: &[DVec3], add_edges: impl Fn(&Self, &mut Angles)) -> Vec<f64> {
+        if points.is_empty() {
             return Vec::new();
         }
-        let mut distances = vec![0.0; self.vertices.len() * n];
-        for (&v, row) in self.vertices.iter().zip(distances.chunks_exact_mut(n)) {
-            for (distance, &p) in row.iter_mut().zip(points) {
-                *distance = (v - p).length();
-            }
-        }
         let mut angles = Angles::new(points);
-        add_edges(self, &mut angles, &distances);
+        add_edges(self, &mut angles);
         // Ω = 2·(half angles), w = Ω / 4π.
         angles.radians().map(|radians| radians / PI * 0.5).collect()
     }
 
     /// [`Curtain::add_edges`] in AVX2's wider vector lanes where the CPU has them: the same
     /// operations, so the same values to the bit.
-    fn add_edges_fast(&self, angles: &mut Angles, distances: &[f64]) {
+    fn add_edges_fast(&self, angles: &mut Angles) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2.
-            return unsafe { self.add_edges_avx2(angles, distances) };
+            return unsafe { self.add_edges_avx2(angles) };
         }
-        self.add_edges(angles, distances)
+        self.add_edges(angles)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn add_edges_avx2(&self, angles: &mut Angles, distances: &[f64]) {
-        self.add_edges(angles, distances)
+    fn add_edges_avx2(&self, angles: &mut Angles) {
+        self.add_edges(angles)
     }
 
-    /// Adds each edge's half solid angle to `angles`, given each vertex's `distances` from the
-    /// points (a row a vertex).
+    /// Adds each edge's half solid angle to `angles`, each vertex's distances from the points
+    /// found first (a row a vertex).
     #[inline(always)]
-    fn add_edges(&self, angles: &mut Angles, distances: &[f64]) {
+    fn add_edges(&self, angles: &mut Angles) {
         let n = angles.turns.len();
+        let [px, py, pz] = angles.at.each_ref().map(|c| &c[..n]);
+        let mut distances = vec![0.0; self.vertices.len() * n];
+        for (&v, row) in self.vertices.iter().zip(distances.chunks_exact_mut(n)) {
+            for (k, distance) in row.iter_mut().enumerate() {
+                *distance = (v - DVec3::new(px[k], py[k], pz[k])).length();
+            }
+        }
         for &(a, b, weight) in &self.edges {
             let lengths = [&distances[a * n..][..n], &distances[b * n..][..n]];
             for _ in 0..weight.unsigned_abs() {

@@ -122,6 +122,23 @@ impl View {
         )
     }
 
+    /// For a perspective view, the sides of its frustum (right, left, top, bottom) that `p` lies
+    /// beyond, a bit each, with a millionth to spare; none for an orthographic view. A triangle
+    /// whose corners all lie beyond one side draws no pixel: clipped at the near plane, it stays
+    /// there, where [`View::project`] puts it off the image.
+    pub fn beyond_sides(&self, p: DVec3) -> u8 {
+        let Lens::Perspective { eye } = self.lens else {
+            return 0;
+        };
+        let d = p - eye;
+        let (across, along, z) = (d.dot(self.right), d.dot(self.up), -d.dot(self.dir));
+        let beyond = |w: f64| w - z > 1e-6 * (w.abs() + z.abs());
+        u8::from(beyond(across))
+            | u8::from(beyond(-across)) << 1
+            | u8::from(beyond(along)) << 2
+            | u8::from(beyond(-along)) << 3
+    }
+
     /// A perspective view's rays as rise (world y) per unit of depth: the most that any ray
     /// through the image rises or falls, and the most that two rays up to `apart` pixels apart
     /// along each axis differ by.
@@ -248,7 +265,32 @@ pub fn fibonacci_sphere(n: usize) -> Vec<DVec3> {
 #[cfg(test)]
 mod tests {
     use super::View;
+    use crate::geom::raster::rasterize;
     use glam::DVec3;
+
+    #[test]
+    fn a_triangle_beyond_a_side_of_a_perspective_view_draws_nothing() {
+        let mut rng = fastrand::Rng::with_seed(5);
+        let eye = DVec3::new(0.3, -0.2, 0.1);
+        let views = View::cube_map(eye, 32, 1e-4);
+        let (mut beyond, mut drawn) = (0, 0);
+        for _ in 0..20_000 {
+            // Corners near the eye and far, some behind it, so that clipping cuts many.
+            let tri = [(); 3].map(|()| eye + DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 4.0 - 2.0);
+            for view in &views {
+                let sides = tri.iter().fold(0xf, |sides, &p| sides & view.beyond_sides(p));
+                let mut pixels = 0;
+                rasterize(view, &tri, |_, _| pixels += 1);
+                if sides != 0 {
+                    beyond += 1;
+                    assert_eq!(pixels, 0, "{tri:?} beyond sides {sides:#b}");
+                }
+                drawn += usize::from(pixels > 0);
+            }
+        }
+        // Both kinds are common, so the test says something.
+        assert!(beyond > 20_000 && drawn > 20_000, "{beyond} beyond, {drawn} drawn");
+    }
 
     #[test]
     fn projection_rows_project_as_the_view_does() {

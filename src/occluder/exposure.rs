@@ -558,7 +558,10 @@ fn lowest_corners(mesh: &Mesh) -> Vec<f32> {
 /// that falls there comes from no higher than the camera. So a triangle whose lowest corner
 /// clears the horizon by that much, at its farthest corner's depth, hides nothing counted. Two
 /// pixels' spread and twice the tolerance leave room for rounding.
+///
+/// Triangles wholly beyond a side of the view's frustum are left out too: they draw nothing.
 fn may_hide_counted(mesh: &Mesh, lowest: &[f32], sphere: (DVec3, f64), view: &View, horizon: f64) -> Mesh {
+    let beyond: Vec<u8> = mesh.positions.iter().map(|p| view.beyond_sides(p.as_dvec3())).collect();
     let (rise, spread) = view.ray_rise(2.0);
     let clear = horizon + 2.0 * view.depth_tolerance() * rise;
     // Depth is linear with a unit gradient: no point of the mesh lies deeper.
@@ -578,7 +581,13 @@ fn may_hide_counted(mesh: &Mesh, lowest: &[f32], sphere: (DVec3, f64), view: &Vi
     Mesh {
         positions: mesh.positions.clone(),
         triangles: (0..mesh.triangles.len())
-            .filter(|&t| may_hide(t))
+            .filter(|&t| {
+                mesh.triangles[t]
+                    .iter()
+                    .fold(0xf, |sides, &v| sides & beyond[v as usize])
+                    == 0
+                    && may_hide(t)
+            })
             .map(|t| mesh.triangles[t])
             .collect(),
     }

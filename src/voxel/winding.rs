@@ -36,10 +36,11 @@ const MARGIN: f64 = 0.15;
 pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -> Vec<bool> {
     let mut inside = vec![false; grid.len()];
     let (ny, nz) = (grid.dims[1], grid.dims[2]);
-    let counts = |c: usize| -> Vec<f64> { crossings.above(grid, c).map(|(sum, _)| f64::from(sum)).collect() };
+    // Per voxel of column c, the signed count of the surface's crossings above it.
+    let counts_above = |c: usize| -> Vec<f64> { crossings.above(grid, c).map(|(sum, _)| f64::from(sum)).collect() };
     if boundary.is_empty() {
         inside.par_chunks_mut(nz).enumerate().for_each(|(c, column)| {
-            for (voxel, count) in column.iter_mut().zip(counts(c)) {
+            for (voxel, count) in column.iter_mut().zip(counts_above(c)) {
                 *voxel = count >= 0.5;
             }
         });
@@ -56,7 +57,7 @@ pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEd
         .for_each(|(batch, columns)| {
             let first = batch * COLUMNS_TOGETHER;
             let centre = |(k, z): (usize, usize)| grid.center((first + k) / ny, (first + k) % ny, z);
-            let counts: Vec<Vec<f64>> = (first..first + columns.len() / nz).map(counts).collect();
+            let counts: Vec<Vec<f64>> = (first..first + columns.len() / nz).map(counts_above).collect();
             let sampled: Vec<(usize, usize)> = (0..counts.len())
                 .flat_map(|k| samples.iter().map(move |&z| (k, z)))
                 .collect();

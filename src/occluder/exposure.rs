@@ -25,7 +25,7 @@ pub mod gpu;
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::{self, draw_depth, rasterize, rasterize_eroded, rasterize_within};
+use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, rasterize, rasterize_eroded, rasterize_within};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
@@ -155,7 +155,7 @@ impl OpenViews {
             || {
                 let eyes = eye_depths.par_chunks_mut(PIXELS * PIXELS).zip(eyes).zip(&horizons);
                 eyes.for_each_init(Vec::new, |image, ((out, view), &horizon)| {
-                    draw_depth(
+                    draw_depth_nearest_first(
                         view,
                         &may_hide_counted(mesh, &lowest, (center, radius), view, horizon),
                         image,

@@ -58,10 +58,10 @@ pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEd
             let first = batch * COLUMNS_TOGETHER;
             let centre = |(k, z): (usize, usize)| grid.center((first + k) / ny, (first + k) % ny, z);
             let counts: Vec<Vec<f64>> = (first..first + columns.len() / nz).map(counts_above).collect();
-            let sampled: Vec<(usize, usize)> = (0..counts.len())
-                .flat_map(|k| samples.iter().map(move |&z| (k, z)))
+            let sampled: Vec<DVec3> = (0..counts.len())
+                .flat_map(|k| samples.iter().map(move |&z| centre((k, z))))
                 .collect();
-            let terms = curtain.terms(&sampled.iter().copied().map(centre).collect::<Vec<_>>());
+            let terms = curtain.terms(&sampled);
             let mut exact = Vec::new();
             for (k, (column, terms)) in columns
                 .chunks_mut(nz)

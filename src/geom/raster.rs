@@ -39,13 +39,6 @@ pub fn rasterize_inner(view: &View, tri: &[DVec3; 3], visit: impl FnMut(usize, f
     rasterize_with(view, tri, Coverage::Whole, Span::all(view), visit);
 }
 
-/// Like [`rasterize`], but where edge k (from corner k + 1 to corner k + 2) is flagged in
-/// `eroded`, only pixels whose whole square lies on the triangle's side of it: where a crack
-/// narrower than a pixel runs along that edge, the pixel sees what lies behind.
-pub fn rasterize_eroded(view: &View, tri: &[DVec3; 3], eroded: [bool; 3], visit: impl FnMut(usize, f64)) {
-    rasterize_with(view, tri, Coverage::Eroded(eroded), Span::all(view), visit);
-}
-
 #[derive(Clone, Copy, PartialEq)]
 enum Coverage {
     /// Pixels whose centre the triangle covers, at the centre's depth.
@@ -524,34 +517,35 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
 /// Calls `visit(pixel index, depth)` for every pixel centre each triangle of `mesh` covers.
 /// Each vertex is projected once.
 pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
-    fill_mesh(view, mesh, &mut EachPixel(visit));
+    fill_mesh(view, mesh, |_| Coverage::Centres, &mut EachPixel(visit));
 }
 
-/// [`rasterize_mesh`] into any [`Pixels`].
-fn fill_mesh(view: &View, mesh: &Mesh, visit: &mut impl Pixels) {
+/// Draws `mesh` over `depth`, a depth image of `view`, where triangle t's edge k (from corner
+/// k + 1 to corner k + 2) flagged in `eroded[t]` leaves out the pixels whose square it crosses:
+/// where a crack narrower than a pixel runs along that edge, the pixel sees what lies behind.
+pub fn draw_eroded(view: &View, mesh: &Mesh, eroded: &[[bool; 3]], depth: &mut [f32]) {
+    let mut pixels = EachPixel(|i: usize, d: f64| depth[i] = depth[i].min(d as f32));
+    fill_mesh(view, mesh, |t| Coverage::Eroded(eroded[t]), &mut pixels);
+}
+
+/// Triangle t of `mesh` by `coverage(t)` into any [`Pixels`], every vertex projected once.
+fn fill_mesh(view: &View, mesh: &Mesh, coverage: impl Fn(usize) -> Coverage, visit: &mut impl Pixels) {
     let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
     let all = Span::all(view);
     match view.lens {
         Lens::Orthographic { .. } => {
-            for t in &mesh.triangles {
-                fill(
-                    view,
-                    t.map(|i| projected[i as usize]),
-                    Coverage::Centres,
-                    |d| d,
-                    all,
-                    visit,
-                );
+            for (t, tri) in mesh.triangles.iter().enumerate() {
+                fill(view, tri.map(|i| projected[i as usize]), coverage(t), |d| d, all, visit);
             }
         }
         Lens::Perspective { .. } => {
-            for t in &mesh.triangles {
-                let tri = t.map(|i| mesh.positions[i as usize].as_dvec3());
+            for (t, tri) in mesh.triangles.iter().enumerate() {
+                let corners = tri.map(|i| mesh.positions[i as usize].as_dvec3());
                 fill_perspective(
                     view,
-                    &tri,
-                    t.map(|i| projected[i as usize]),
-                    Coverage::Centres,
+                    &corners,
+                    tri.map(|i| projected[i as usize]),
+                    coverage(t),
                     all,
                     visit,
                 );
@@ -721,13 +715,18 @@ pub fn draw_coverage(view: &View, mesh: &Mesh, mask: &mut [u64]) -> std::ops::Ra
         first: usize::MAX,
         end: 0,
     };
-    fill_mesh(view, mesh, &mut bits);
+    fill_mesh(view, mesh, |_| Coverage::Centres, &mut bits);
     bits.first.min(bits.end)..bits.end
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One triangle as [`draw_eroded`] draws each of its own.
+    fn rasterize_eroded(view: &View, tri: &[DVec3; 3], eroded: [bool; 3], visit: impl FnMut(usize, f64)) {
+        rasterize_with(view, tri, Coverage::Eroded(eroded), Span::all(view), visit);
+    }
 
     /// A tall triangle whose edge 0 (from corner 1 to corner 2) is a vertical line at world x =
     /// `edge_x`, seen from the front in a 16-pixel view: the pixels drawn, plainly and eroded.
@@ -869,6 +868,37 @@ mod tests {
             drawn += whole.len();
         }
         assert!(drawn > 10_000 && crossing > 100, "{drawn} pixels, {crossing} crossing");
+    }
+
+    #[test]
+    fn an_eroded_mesh_draws_what_its_triangles_draw_one_by_one() {
+        let mesh = random_triangles(5, 900, [0.05, 0.3, 1.5]);
+        let mut rng = fastrand::Rng::with_seed(6);
+        let eroded: Vec<[bool; 3]> = (0..mesh.triangles.len())
+            .map(|_| [rng.bool(), rng.bool(), rng.bool()])
+            .collect();
+        let around = [DVec3::X, DVec3::new(0.3, 0.8, -0.5).normalize()].map(|d| View::new(d, DVec3::ZERO, 1.0, 96));
+        let (mut drawn, mut fewer) = (0, 0);
+        for view in around
+            .into_iter()
+            .chain(View::cube_map(DVec3::new(0.01, -0.02, 0.03), 64, 1e-3))
+        {
+            let n = view.pixels * view.pixels;
+            let mut whole = vec![f32::INFINITY; n];
+            draw_eroded(&view, &mesh, &eroded, &mut whole);
+            let (mut one_by_one, mut plain) = (vec![f32::INFINITY; n], vec![f32::INFINITY; n]);
+            for (tri, &flags) in mesh.triangles_f64().zip(&eroded) {
+                rasterize_eroded(&view, &tri, flags, |i, d| one_by_one[i] = one_by_one[i].min(d as f32));
+                rasterize(&view, &tri, |i, d| plain[i] = plain[i].min(d as f32));
+            }
+            assert!(whole.iter().zip(&one_by_one).all(|(a, b)| a.to_bits() == b.to_bits()));
+            drawn += whole.iter().filter(|d| d.is_finite()).count();
+            fewer += whole.iter().zip(&plain).filter(|(a, b)| a != b).count();
+        }
+        assert!(
+            drawn > 10_000 && fewer > 1_000,
+            "{drawn} pixels drawn, {fewer} of them eroded"
+        );
     }
 
     #[test]

@@ -25,7 +25,7 @@ pub mod gpu;
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, rasterize, rasterize_eroded, rasterize_within};
+use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
@@ -124,12 +124,17 @@ impl OpenViews {
         let (sky_depths, eye_depths) = depths.split_at_mut(sky_views * PIXELS * PIXELS);
         let (sky, eyes) = views.split_at(sky_views);
         let drawn = uncracked.as_ref().unwrap_or(mesh);
-        // Triangles along a crack are drawn eroded on the CPU, over the rest.
+        // Triangles along a crack are drawn eroded on the CPU, over the rest: as a soup of
+        // their own, so that each view projects their corners in one pass.
+        let crack_soup = Mesh {
+            positions: cracked.keys().flat_map(|&t| mesh.corners(t)).collect(),
+            triangles: (0..cracked.len() as u32)
+                .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
+                .collect(),
+        };
+        let eroded_edges: Vec<[bool; 3]> = cracked.values().copied().collect();
         let finish = |view: &View, image: &mut [f32], out: &mut [f32]| {
-            for (&t, &eroded) in &cracked {
-                let triangle = mesh.corners(t).map(|p| p.as_dvec3());
-                rasterize_eroded(view, &triangle, eroded, |i, d| image[i] = image[i].min(d as f32));
-            }
+            draw_eroded(view, &crack_soup, &eroded_edges, image);
             farthest_nearby(image, PIXELS, out);
         };
         let lowest = lowest_corners(mesh);

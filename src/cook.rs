@@ -479,7 +479,27 @@ fn closed_solid(topology: &Topology, cook: &CookSettings) -> Option<quads::Solid
 /// then checks each quad. cpsv decides by cells, so its inner voxels decide too.
 fn find_quads(mesh: &Mesh, grid: &Grid, inner: &[bool], cook: &CookSettings) -> Vec<Panel> {
     let inner_voxel = |p: DVec3| grid.containing(p).is_some_and(|i| inner[i]);
-    quads::find(mesh, cook.quad_grid, quads::Solid::Points(&inner_voxel))
+    // The inner voxels as runs along z: few boxes where the quads may lie.
+    let [_, ny, nz] = grid.dims;
+    let mut runs = Vec::new();
+    for (column, cells) in inner.chunks(nz).enumerate() {
+        let (x, y) = (column / ny, column % ny);
+        let mut z = 0;
+        while let Some(start) = cells[z..].iter().position(|&i| i).map(|k| z + k) {
+            let end = cells[start..].iter().position(|&i| !i).map_or(nz, |k| start + k);
+            let run = VoxelBox {
+                lo: [x, y, start],
+                hi: [x + 1, y + 1, end],
+            };
+            runs.push(WorldBox::from_voxels(grid, &run));
+            z = end;
+        }
+    }
+    let solid = quads::Solid::Points {
+        at: &inner_voxel,
+        within: &runs,
+    };
+    quads::find(mesh, cook.quad_grid, solid)
 }
 
 /// The quads no view sees; one that shows in part is cut down to its largest hidden rectangle.

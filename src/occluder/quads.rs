@@ -15,12 +15,12 @@
 //! what oblique views see of rounded shapes.
 
 use super::rectangle::{CellRect, Sweep};
-use super::{Panel, Shape};
+use super::{Panel, Shape, WorldBox};
 use crate::geom::buckets::Buckets;
 use crate::geom::{ceil_index, floor_index, greater, index_to_f64, lesser};
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
-use glam::{DQuat, DVec3};
+use glam::{DMat3, DQuat, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::f64::consts::FRAC_PI_4;
@@ -122,8 +122,13 @@ pub enum Solid<'a> {
     /// signed sum is the winding number there and whose count's parity is the parity test, as
     /// along any other ray. Inside where the sum is at least 1, or with `parity`, the count odd.
     Closed { parity: bool },
-    /// Any other: the classification at a world point, asked at the gap's middle.
-    Points(&'a (dyn Fn(DVec3) -> bool + Sync)),
+    /// Any other: the classification `at` a world point, asked at the gap's middle. It holds
+    /// nowhere outside the boxes `within` (such as the inner voxels), so a cell whose centre
+    /// line misses them all has no inside gap, and nothing in it is worked out.
+    Points {
+        at: &'a (dyn Fn(DVec3) -> bool + Sync),
+        within: &'a [WorldBox],
+    },
 }
 
 /// Quads inside the solid, up to `MAX_PER_AXIS` per axis and frame. `grid` is the number of
@@ -159,19 +164,87 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
             // Keeps quads clear of the surface by more than rounding to f32 can move them.
             let margin = 1e-6 * size;
             let corners: Vec<[f64; 3]> = mesh.positions.iter().map(|p| g.uv(p.as_dvec3())).collect();
-            let gaps = inside_gaps(mesh, &corners, &g, margin, solid);
+            let reach = match solid {
+                Solid::Points { within, .. } => Some(Reach::new(&g, within)),
+                Solid::Closed { .. } => None,
+            };
+            let gaps = inside_gaps(mesh, &corners, &g, margin, solid, reach.as_ref());
             let planes = candidate_planes(&gaps, lo[axis], hi[axis], cell);
             best_rectangles(&g, &gaps, &planes, margin)
         })
         .collect()
 }
 
+/// The cells of an axis grid whose centre lines meet any of some world boxes, give or take a
+/// hundredth of a cell: all those where a classification that holds only within the boxes may
+/// hold ([`Solid::Points`]).
+struct Reach {
+    nv: usize,
+    /// Over the cells (the second axis fastest) with a row and column of zeros before them,
+    /// how many cells are reached before and up to each.
+    counts: Vec<u32>,
+}
+
+impl Reach {
+    fn new(g: &AxisGrid, boxes: &[WorldBox]) -> Reach {
+        let [nu, nv] = g.dims;
+        let mut reached = vec![false; nu * nv];
+        // A box's extent in the frame, about its centre: the turn's entries' sizes weigh its
+        // half sides.
+        let sizes = DMat3::from_quat(g.turn).abs();
+        let (ua, va) = ((g.axis + 1) % 3, (g.axis + 2) % 3);
+        for b in boxes {
+            let (centre, half) = (g.turn * (0.5 * (b.lo() + b.hi())), sizes * (0.5 * (b.hi() - b.lo())));
+            let cells = |k: usize, along: usize| {
+                let slack = 0.01 * g.cell + 1e-9 * (centre[along].abs() + half[along]);
+                let (lo, hi) = (centre[along] - half[along] - slack, centre[along] + half[along] + slack);
+                // Cells whose centres, (i + 0.5) cells from the origin, lie in [lo, hi].
+                let first = (g.cells_along(k, lo) - 0.5).ceil().max(0.0);
+                let last = (g.cells_along(k, hi) - 0.5).floor().min(g.dims[k] as f64 - 1.0);
+                (first <= last).then(|| first as usize..last as usize + 1)
+            };
+            if let (Some(us), Some(vs)) = (cells(0, ua), cells(1, va)) {
+                for u in us {
+                    reached[u * nv + vs.start..u * nv + vs.end].fill(true);
+                }
+            }
+        }
+        let mut counts = vec![0u32; (nu + 1) * (nv + 1)];
+        for u in 0..nu {
+            for v in 0..nv {
+                counts[(u + 1) * (nv + 1) + v + 1] =
+                    u32::from(reached[u * nv + v]) + counts[u * (nv + 1) + v + 1] + counts[(u + 1) * (nv + 1) + v]
+                        - counts[u * (nv + 1) + v];
+            }
+        }
+        Reach { nv, counts }
+    }
+
+    /// Whether any of the cells `us` × `vs` is reached.
+    fn any(&self, us: &std::ops::Range<usize>, vs: &std::ops::Range<usize>) -> bool {
+        let at = |u: usize, v: usize| self.counts[u * (self.nv + 1) + v];
+        at(us.end, vs.end) + at(us.start, vs.start) > at(us.start, vs.end) + at(us.end, vs.start)
+    }
+
+    fn holds(&self, u: usize, v: usize) -> bool {
+        self.any(&(u..u + 1), &(v..v + 1))
+    }
+}
+
 /// For every cell, the gaps between blocked height ranges whose cross-section is inside.
-/// `corners` are the mesh's vertices in grid coordinates.
-fn inside_gaps(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, margin: f64, solid: Solid) -> Gaps {
+/// `corners` are the mesh's vertices in grid coordinates. Only cells `reach` holds, if given,
+/// may have any.
+fn inside_gaps(
+    mesh: &Mesh,
+    corners: &[[f64; 3]],
+    g: &AxisGrid,
+    margin: f64,
+    solid: Solid,
+    reach: Option<&Reach>,
+) -> Gaps {
     let nv = g.dims[1];
     let cells = g.dims[0] * nv;
-    let blocked = blocked_ranges(mesh, corners, g);
+    let blocked = blocked_ranges(mesh, corners, g, reach);
     let Buckets {
         starts,
         items: mut ranges,
@@ -213,7 +286,7 @@ fn inside_gaps(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, margin: f64, sol
                 }
                 inside.clear();
                 match solid {
-                    Solid::Points(at) => inside.extend(
+                    Solid::Points { at, .. } => inside.extend(
                         found
                             .iter()
                             .map(|(_, gap)| at(g.point(center[0], center[1], 0.5 * (gap.lo + gap.hi)))),
@@ -302,9 +375,10 @@ struct Block {
     heights: (f64, f64),
 }
 
-/// The heights each triangle blocks in each cell whose closed footprint it meets, by cell: in
-/// one list per share of the triangles, which the counting sort reads without joining them.
-fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Block>> {
+/// The heights each triangle blocks in each cell whose closed footprint it meets (of those
+/// `reach` holds, if given), by cell: in one list per share of the triangles, which the
+/// counting sort reads without joining them.
+fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, reach: Option<&Reach>) -> Vec<Vec<Block>> {
     let nv = g.dims[1];
     // Each corner's place among the cells, once rather than in each of its triangles.
     let in_cells: Vec<[f64; 2]> = corners.iter().map(|p| g.place_of(p)).collect();
@@ -323,6 +397,9 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
                 let lo = |k: usize| tri.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
                 let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
                 let (ru, rv) = (g.range_of(0, &places), g.range_of(1, &places));
+                if reach.is_some_and(|reach| !reach.any(&ru, &rv)) {
+                    return (out, cells);
+                }
                 if ru.len() == 1 && rv.len() == 1 {
                     // Wholly inside one cell.
                     out.push(block(ru.start * nv + rv.start, (lo(2), hi(2))));
@@ -331,7 +408,7 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid) -> Vec<Vec<Bl
                 cells.of_triangle(&tri, &places, g, [ru.start, rv.start], [ru.len(), rv.len()]);
                 for (u, row) in ru.zip(cells.heights.chunks(rv.len() + 2).skip(1)) {
                     for (v, &(t0, t1)) in rv.clone().zip(&row[1..]) {
-                        if t0 <= t1 {
+                        if t0 <= t1 && reach.is_none_or(|reach| reach.holds(u, v)) {
                             out.push(block(u * nv + v, (t0, t1)));
                         }
                     }
@@ -911,10 +988,9 @@ mod tests {
     use crate::occluder::WorldBox;
     use crate::occluder::rectangle::{bit_rows, largest};
 
-    #[test]
-    fn a_closed_surfaces_crossings_decide_its_gaps_as_point_queries_do() {
-        // A box with a hollow, and a turned box through the shell and the hollow: winding
-        // numbers 0, 1 and 2, where parity and winding disagree.
+    /// A box with a hollow, and a turned box through the shell and the hollow: winding numbers
+    /// 0, 1 and 2, where parity and winding disagree.
+    fn hollow_box() -> Mesh {
         let mut mesh = Mesh::default();
         let mut add = |lo: [f64; 3], hi: [f64; 3], turn: DQuat, inward: bool| {
             for tri in (WorldBox { lo, hi }).triangles() {
@@ -933,21 +1009,71 @@ mod tests {
             DQuat::from_euler(glam::EulerRot::XYZ, 0.3, 0.5, 0.2),
             false,
         );
-        let winding = |p: DVec3| -> (i32, u32) {
-            let hits = (0..mesh.triangles.len()).filter_map(|t| {
-                column_hit(&mesh.corners(t).map(|c| c.as_dvec3().to_array()), [p.x, p.y]).filter(|hit| hit.z > p.z)
-            });
-            hits.fold((0, 0), |(sum, count), hit| (sum + i32::from(hit.sign), count + 1))
-        };
+        mesh
+    }
+
+    /// Whether `p` is inside `mesh` by the crossings of the line up from it: the winding
+    /// number at least 1, or with `parity`, the count odd.
+    fn inside_by_crossings(mesh: &Mesh, p: DVec3, parity: bool) -> bool {
+        let hits = (0..mesh.triangles.len()).filter_map(|t| {
+            column_hit(&mesh.corners(t).map(|c| c.as_dvec3().to_array()), [p.x, p.y]).filter(|hit| hit.z > p.z)
+        });
+        let (sum, count) = hits.fold((0, 0), |(sum, count), hit| (sum + i32::from(hit.sign), count + 1));
+        if parity { count % 2 == 1 } else { sum >= 1 }
+    }
+
+    /// A box around all of [`hollow_box`].
+    const EVERYWHERE: [WorldBox; 1] = [WorldBox {
+        lo: [-1.0; 3],
+        hi: [5.0; 3],
+    }];
+
+    #[test]
+    fn a_closed_surfaces_crossings_decide_its_gaps_as_point_queries_do() {
+        let mesh = hollow_box();
         for parity in [false, true] {
-            let inside = |p: DVec3| match winding(p) {
-                (_, count) if parity => count % 2 == 1,
-                (sum, _) => sum >= 1,
-            };
-            let by_points = find(&mesh, 40, Solid::Points(&inside));
+            let inside = |p: DVec3| inside_by_crossings(&mesh, p, parity);
+            let within = &EVERYWHERE;
+            let by_points = find(&mesh, 40, Solid::Points { at: &inside, within });
             assert!(by_points.len() > 12, "{} quads", by_points.len());
             assert_eq!(find(&mesh, 40, Solid::Closed { parity }), by_points, "parity {parity}");
         }
+    }
+
+    #[test]
+    fn cells_whose_centre_lines_miss_the_boxes_a_solid_lies_in_are_left_out_exactly() {
+        let mesh = hollow_box();
+        // Boxes that cut across cells and the turned frames' diagonals.
+        let within = [
+            WorldBox {
+                lo: [0.23, 0.31, 0.17],
+                hi: [1.37, 3.71, 2.03],
+            },
+            WorldBox {
+                lo: [2.61, 0.47, 0.29],
+                hi: [3.58, 1.93, 3.77],
+            },
+        ];
+        let in_a_box = |p: DVec3| within.iter().any(|b| p.cmpge(b.lo()).all() && p.cmple(b.hi()).all());
+        let inside = |p: DVec3| in_a_box(p) && inside_by_crossings(&mesh, p, false);
+        let left_out = find(
+            &mesh,
+            40,
+            Solid::Points {
+                at: &inside,
+                within: &within,
+            },
+        );
+        assert!(left_out.len() > 12, "{} quads", left_out.len());
+        let everywhere = find(
+            &mesh,
+            40,
+            Solid::Points {
+                at: &inside,
+                within: &EVERYWHERE,
+            },
+        );
+        assert_eq!(left_out, everywhere);
     }
 
     /// The part of a convex polygon with coordinate `k` on one side of `bound`, closed

@@ -26,8 +26,8 @@ use crate::occluder::{
 use crate::voxel::{self, Grid, InsideMethod, cpsv::CpsvStats, winding::WindingField};
 use glam::DVec3;
 use rayon::prelude::*;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 /// The stages of a cook, in order, for progress reports.
@@ -315,10 +315,15 @@ fn voxel_stages(
     })?;
     run.note_undecided(inside.cpsv.as_ref());
     let mut inner = run.stage("inner", || inner_voxels(&inside.solid, &surface))?;
+    // Built by the first stage that needs it.
+    let field = OnceLock::new();
+    let winding_field = || field.get_or_init(|| WindingField::new(mesh, &topology.boundary));
     // Only open meshes can show their inside.
     let open_views = match topology.boundary.is_empty() {
         true => None,
-        false => Some(run.on_device("exposure-render", |gpu| OpenViews::new(mesh, &topology.boundary, gpu))?),
+        false => Some(run.on_device("exposure-render", |gpu| {
+            OpenViews::new(mesh, &topology.boundary, winding_field, gpu)
+        })?),
     };
     let exposed_voxels = match &open_views {
         None => 0,
@@ -327,9 +332,8 @@ fn voxel_stages(
     let voxel_boxes = run.kind_stage(uses(Shape::Boxes), "boxes", || {
         boxes::expand(&inner, grid.dims, &expansion(cook))
     })?;
-    let field = run.stage("refine", || WindingField::new(mesh, &topology.boundary))?;
     let refined = run.stage("refine", || {
-        refine_boxes(mesh, grid, &field, &inside.solid, &voxel_boxes, cook.refine)
+        refine_boxes(mesh, grid, winding_field(), &inside.solid, &voxel_boxes, cook.refine)
     })?;
     let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
         None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),

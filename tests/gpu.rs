@@ -11,6 +11,7 @@ use occluder_cook::gpu::{self, Gpu, GpuError};
 use occluder_cook::mesh::{IngestLimits, Mesh, load_file, topology::orient_closed_components};
 use occluder_cook::occluder::exposure::OpenViews;
 use occluder_cook::voxel::bricks::BrickGrid;
+use occluder_cook::voxel::winding::WindingField;
 use occluder_cook::voxel::{Grid, InsideMethod, classify, surface};
 
 fn differ(a: &[bool], b: &[bool]) -> usize {
@@ -465,7 +466,8 @@ fn exposed_voxels_on_the_gpu_match_their_cpu_twin() {
         let (lo, hi) = mesh.bounds();
         let grid = Grid::fit(lo, hi, 64);
         let topology = orient_closed_components(&mut mesh);
-        let views = OpenViews::new(&mesh, &topology.boundary, None).expect("CPU views");
+        let field = WindingField::new(&mesh, &topology.boundary);
+        let views = OpenViews::new(&mesh, &topology.boundary, || &field, None).expect("CPU views");
         // Every voxel, so that every corner of the grid is tested.
         let (mut on_gpu, mut on_cpu) = (vec![true; grid.len()], vec![true; grid.len()]);
         let removed = views

@@ -81,8 +81,14 @@ pub struct OpenViews {
 
 impl OpenViews {
     /// Renders the views' depth images, the orthographic ones on `gpu` when given
-    /// (shaders/raster.wgsl). `boundary` is the mesh's open boundary.
-    pub fn new(mesh: &Mesh, boundary: &[BoundaryEdge], gpu: Option<&Gpu>) -> Result<OpenViews, GpuError> {
+    /// (shaders/raster.wgsl). `boundary` is the mesh's open boundary, and `winding_field` gives
+    /// its winding number field, built once for this and what else needs it.
+    pub fn new<'f>(
+        mesh: &Mesh,
+        boundary: &[BoundaryEdge],
+        winding_field: impl Fn() -> &'f WindingField<'f> + Sync,
+        gpu: Option<&Gpu>,
+    ) -> Result<OpenViews, GpuError> {
         let (center, radius) = mesh.bounding_sphere();
         let horizon = (0..HORIZON_DIRECTIONS).map(|k| {
             let angle = std::f64::consts::TAU * k as f64 / HORIZON_DIRECTIONS as f64;
@@ -95,7 +101,12 @@ impl OpenViews {
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
         let sky_views = views.len();
-        let eyes = opening_eyes(mesh, boundary);
+        let pixel = 2.0 * radius / PIXELS as f64;
+        // Each mostly serial: side by side.
+        let (eyes, cracked) = rayon::join(
+            || opening_eyes(mesh, boundary, winding_field()),
+            || crack_edges(mesh, boundary, pixel, TOUCHING * radius),
+        );
         let mut horizons = Vec::new();
         for (eye, horizon) in eyes {
             // The face looking up sees only what is higher than the camera: it counts only
@@ -108,8 +119,6 @@ impl OpenViews {
                 horizons.push(horizon);
             }
         }
-        let pixel = 2.0 * radius / PIXELS as f64;
-        let cracked = crack_edges(mesh, boundary, pixel, TOUCHING * radius);
         let uncracked = (!cracked.is_empty()).then(|| Mesh {
             positions: mesh.positions.clone(),
             triangles: (0..mesh.triangles.len())
@@ -649,7 +658,7 @@ fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
 /// opening sees in only through a real gap. Each camera comes with the height it counts up to:
 /// its opening's highest point, or its own where it moved higher. Cameras whose height is at the
 /// very bottom of the mesh are left out: nothing lies lower for them to show.
-fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(DVec3, f64)> {
+fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField) -> Vec<(DVec3, f64)> {
     let mut neighbours: HashMap<u32, Vec<&BoundaryEdge>> = HashMap::new();
     for e in boundary {
         neighbours.entry(e.a).or_default().push(e);
@@ -688,7 +697,6 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(DVec3, f64)> {
     let (lo, hi) = mesh.bounds();
     let size = f64::from((hi - lo).length());
     let bottom = f64::from(lo.y) + 1e-3 * size;
-    let field = WindingField::new(mesh, boundary);
     let mut eyes = Vec::new();
     for (rim, area, opening_size) in &openings {
         let centre = rim.iter().sum::<DVec3>() / rim.len() as f64;
@@ -785,7 +793,8 @@ mod tests {
 
     fn views_of(mut mesh: Mesh) -> OpenViews {
         let topology = orient_closed_components(&mut mesh);
-        OpenViews::new(&mesh, &topology.boundary, None).expect("the CPU draws")
+        let field = WindingField::new(&mesh, &topology.boundary);
+        OpenViews::new(&mesh, &topology.boundary, || &field, None).expect("the CPU draws")
     }
 
     fn panel(corners: [[f64; 3]; 4]) -> Panel {

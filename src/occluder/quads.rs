@@ -141,14 +141,16 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
         DQuat::from_rotation_z(FRAC_PI_4),
     ];
     let passes: Vec<(DQuat, usize)> = frames.iter().flat_map(|&f| (0..3).map(move |axis| (f, axis))).collect();
-    passes
+    // Each pass's gaps, then its rectangles: the searches, serial within a pass, are shared out
+    // once all gaps are found, so that no thread waits long for the last.
+    let found: Vec<_> = passes
         .par_iter()
-        .flat_map_iter(|&(turn, axis)| {
+        .filter_map(|&(turn, axis)| {
             let (lo, hi) = point_bounds(mesh.positions.iter().map(|p| turn * p.as_dvec3()));
             let size = (hi - lo).max_element();
             let cell = size / grid as f64;
             if cell <= 0.0 || !cell.is_finite() {
-                return Vec::new();
+                return None;
             }
             let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
             let g = AxisGrid {
@@ -170,8 +172,12 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
             };
             let gaps = inside_gaps(mesh, &corners, &g, margin, solid, reach.as_ref());
             let planes = candidate_planes(&gaps, lo[axis], hi[axis], cell);
-            best_rectangles(&g, &gaps, &planes, margin)
+            Some((g, gaps, planes, margin))
         })
+        .collect();
+    found
+        .par_iter()
+        .flat_map_iter(|(g, gaps, planes, margin)| best_rectangles(g, gaps, planes, *margin))
         .collect()
 }
 

@@ -119,31 +119,17 @@ impl OpenViews {
                 horizons.push(horizon);
             }
         }
-        let uncracked = (!cracked.is_empty()).then(|| Mesh {
-            positions: mesh.positions.clone(),
-            triangles: (0..mesh.triangles.len())
-                .filter(|t| !cracked.contains_key(t))
-                .map(|t| mesh.triangles[t])
-                .collect(),
-        });
+        let split = CrackSplit::new(mesh, &cracked);
         // Each view's farthest depths over its neighbourhoods, one image after another, as the
         // GPU takes them. On the CPU each view is drawn, eroded and filtered in turn through one
         // image a thread.
         let mut depths = vec![0f32; views.len() * PIXELS * PIXELS];
         let (sky_depths, eye_depths) = depths.split_at_mut(sky_views * PIXELS * PIXELS);
         let (sky, eyes) = views.split_at(sky_views);
-        let drawn = uncracked.as_ref().unwrap_or(mesh);
-        // Triangles along a crack are drawn eroded on the CPU, over the rest: as a soup of
-        // their own, so that each view projects their corners in one pass.
-        let crack_soup = Mesh {
-            positions: cracked.keys().flat_map(|&t| mesh.corners(t)).collect(),
-            triangles: (0..cracked.len() as u32)
-                .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
-                .collect(),
-        };
-        let eroded_edges: Vec<[bool; 3]> = cracked.values().copied().collect();
+        let drawn = split.uncracked.as_ref().unwrap_or(mesh);
+        // Triangles along a crack are drawn eroded on the CPU, over the rest.
         let finish = |view: &View, image: &mut [f32], out: &mut [f32]| {
-            draw_eroded(view, &crack_soup, &eroded_edges, image);
+            draw_eroded(view, &split.soup, &split.eroded, image);
             farthest_nearby(image, PIXELS, out);
         };
         let lowest = lowest_corners(mesh);
@@ -646,6 +632,41 @@ fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
         let (above, below) = (rows[y.saturating_sub(1)], rows[(y + 1).min(n - 1)]);
         for (((out, &a), &b), &c) in out.iter_mut().zip(above).zip(rows[y]).zip(below) {
             *out = a.max(b).max(c);
+        }
+    }
+}
+
+/// A mesh's triangles along a crack, which the views draw eroded, apart from the rest.
+struct CrackSplit {
+    /// The triangles along no crack, where some lie along one.
+    uncracked: Option<Mesh>,
+    /// Those along a crack as a soup of their own, so that each view projects their corners in
+    /// one pass, and each one's edges along the crack.
+    soup: Mesh,
+    eroded: Vec<[bool; 3]>,
+}
+
+impl CrackSplit {
+    /// `cracked` as [`crack_edges`] finds it.
+    fn new(mesh: &Mesh, cracked: &BTreeMap<usize, [bool; 3]>) -> CrackSplit {
+        let uncracked = (!cracked.is_empty()).then(|| Mesh {
+            positions: mesh.positions.clone(),
+            triangles: (0..mesh.triangles.len())
+                .filter(|t| !cracked.contains_key(t))
+                .map(|t| mesh.triangles[t])
+                .collect(),
+        });
+        let soup = Mesh {
+            positions: cracked.keys().flat_map(|&t| mesh.corners(t)).collect(),
+            triangles: (0..cracked.len() as u32)
+                .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
+                .collect(),
+        };
+        let eroded = cracked.values().copied().collect();
+        CrackSplit {
+            uncracked,
+            soup,
+            eroded,
         }
     }
 }

@@ -77,7 +77,10 @@ fn flat_regions(mesh: &Mesh, tolerance: f64) -> Vec<Vec<usize>> {
             .enumerate()
             .flat_map(|(t, tri)| tri.iter().map(move |&v| (v as usize, t as u32))),
     );
-    let normals: Vec<Option<DVec3>> = (0..mesh.triangles.len()).map(|t| normal(mesh, t)).collect();
+    let normals: Vec<Option<DVec3>> = (0..mesh.triangles.len())
+        .into_par_iter()
+        .map(|t| normal(mesh, t))
+        .collect();
     let mut region_of = vec![false; mesh.triangles.len()];
     let mut regions = Vec::new();
     for seed in 0..mesh.triangles.len() {

@@ -156,6 +156,20 @@ fn retriangulate(mesh: &Mesh, region: &[usize], tolerance: f64) -> Option<Vec<[[
     let mut outline = Outline::of(mesh, region);
     // Straightening only drops corners that lie on a line to well within the tolerance.
     outline.straighten(&flat, tolerance * 1e-3);
+    // Two triangles are worth a new triangulation only where it gives one.
+    if region.len() == 2 && !one_triangle_may_do(&outline, &flat, region_area(mesh, region, &flat)) {
+        return None;
+    }
+    triangulate(mesh, region, &outline, &flat)
+}
+
+/// [`retriangulate`]'s triangulation of the straightened `outline`.
+fn triangulate(
+    mesh: &Mesh,
+    region: &[usize],
+    outline: &Outline,
+    flat: &impl Fn(u32) -> DVec2,
+) -> Option<Vec<[[f64; 3]; 3]>> {
     let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> = ConstrainedDelaunayTriangulation::new();
     // In a fixed order: where corners lie on one circle (a rectangle's), the order of insertion
     // picks the triangulation.
@@ -195,11 +209,37 @@ fn retriangulate(mesh: &Mesh, region: &[usize], tolerance: f64) -> Option<Vec<[[
     }
     // Every face lies wholly inside or outside when the whole outline is in the triangulation:
     // then the kept area is the region's.
-    let region_area: f64 = triangles2d
-        .iter()
-        .map(|q| cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0)
-        .sum();
+    let region_area = region_area(mesh, region, flat);
     ((kept_area - region_area).abs() <= 1e-9 * region_area.max(f64::MIN_POSITIVE)).then_some(kept)
+}
+
+/// The area of a region's triangles in the plane, as `flat` places their corners.
+fn region_area(mesh: &Mesh, region: &[usize], flat: &impl Fn(u32) -> DVec2) -> f64 {
+    region
+        .iter()
+        .map(|&t| {
+            let q = mesh.triangles[t].map(flat);
+            cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0
+        })
+        .sum()
+}
+
+/// Whether a triangulation of an outline of four corners can keep a single triangle, one on
+/// three of them whose area is the region's (`area`) to the billionth [`triangulate`] allows:
+/// not where each such triangle's area misses it by two billionths and by far more than
+/// rounding can move either. Any other outline, with three corners or more than four, may.
+fn one_triangle_may_do(outline: &Outline, flat: &impl Fn(u32) -> DVec2, area: f64) -> bool {
+    let corners: Vec<DVec2> = outline.neighbours.keys().map(|&v| flat(v)).collect();
+    if corners.len() != 4 {
+        return true;
+    }
+    let size = corners.iter().map(|c| c.x.abs() + c.y.abs()).fold(0.0, f64::max);
+    let rounding = 1e-12 * size * size;
+    (0..4).any(|left_out| {
+        let q: Vec<DVec2> = (0..4).filter(|&k| k != left_out).map(|k| corners[k]).collect();
+        let triangle = cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0;
+        (triangle - area).abs() <= 2e-9 * area + rounding
+    })
 }
 
 fn cross(a: DVec2, b: DVec2) -> f64 {
@@ -305,6 +345,60 @@ impl Outline {
 mod tests {
     use super::*;
     use glam::Vec3;
+
+    #[test]
+    fn two_triangles_skip_the_triangulation_only_where_it_gives_two_or_more() {
+        let mut rng = fastrand::Rng::with_seed(11);
+        let (mut one, mut skipped) = (0, 0);
+        for round in 0..20_000 {
+            // P, Q and Y, and X left of PQ: on it (exactly, on a grid that f32 holds), near it,
+            // near P or Q, or anywhere.
+            let exact = round % 4 == 3;
+            let point = |rng: &mut fastrand::Rng| match exact {
+                true => glam::DVec2::new(rng.i32(-8..=8) as f64, rng.i32(-8..=8) as f64) / 8.0,
+                false => glam::DVec2::new(rng.f64() * 2.0 - 1.0, rng.f64() * 2.0 - 1.0),
+            };
+            let (p, q) = (point(&mut rng), point(&mut rng));
+            let along = q - p;
+            let left = glam::DVec2::new(-along.y, along.x);
+            let s = [
+                rng.f64(),
+                -0.2 * rng.f64(),
+                1.0 + 0.2 * rng.f64(),
+                rng.usize(1..4) as f64 / 4.0,
+            ][round % 4];
+            let off = [0.0, 1e-7, 1e-6, 1e-5, 1e-3, 0.3][rng.usize(0..6)] * rng.f64();
+            let x = p + along * s + left * if exact { 0.0 } else { off };
+            let y = p + along * rng.f64() - left * (0.05 + rng.f64());
+            // The first, whose plane the frame takes, never degenerate.
+            let mesh = Mesh {
+                positions: [p, q, x, y]
+                    .iter()
+                    .map(|c| Vec3::new(c.x as f32, c.y as f32, 0.0))
+                    .collect(),
+                triangles: vec![[1, 0, 3], [0, 1, 2]],
+            };
+            let region = [0, 1];
+            let frame = Frame::of(&mesh, 0);
+            let flat = |v: u32| frame.flat(mesh.positions[v as usize].as_dvec3());
+            let mut outline = Outline::of(&mesh, &region);
+            // A millionth: above the rounding of the corners to f32.
+            outline.straighten(&flat, 1e-3 * 1e-3);
+            let fewer = |t: Option<Vec<[[f64; 3]; 3]>>| t.filter(|t| t.len() < 2);
+            let whole = fewer(triangulate(&mesh, &region, &outline, &flat));
+            assert_eq!(fewer(retriangulate(&mesh, &region, 1e-3)), whole, "round {round}");
+            one += usize::from(whole.is_some());
+            skipped += usize::from(!one_triangle_may_do(
+                &outline,
+                &flat,
+                region_area(&mesh, &region, &flat),
+            ));
+        }
+        assert!(
+            one > 2_000 && skipped > 10_000,
+            "{one} as one triangle, {skipped} skipped"
+        );
+    }
 
     /// An n×n grid of squares, two triangles each, on z = 0.
     fn grid(n: u32) -> Mesh {

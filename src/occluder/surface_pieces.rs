@@ -156,19 +156,21 @@ fn retriangulate(mesh: &Mesh, region: &[usize], tolerance: f64) -> Option<Vec<[[
     let mut outline = Outline::of(mesh, region);
     // Straightening only drops corners that lie on a line to well within the tolerance.
     outline.straighten(&flat, tolerance * 1e-3);
+    let triangles2d: Vec<[DVec2; 3]> = region.iter().map(|&t| mesh.triangles[t].map(flat)).collect();
     // Two triangles are worth a new triangulation only where it gives one.
-    if region.len() == 2 && !one_triangle_may_do(&outline, &flat, region_area(mesh, region, &flat)) {
+    if region.len() == 2 && !one_triangle_may_do(&outline, &flat, area(&triangles2d)) {
         return None;
     }
-    triangulate(mesh, region, &outline, &flat)
+    triangulate(mesh, &outline, &flat, &triangles2d)
 }
 
-/// [`retriangulate`]'s triangulation of the straightened `outline`.
+/// [`retriangulate`]'s triangulation of the straightened `outline` of the region whose
+/// triangles, in the plane, are `triangles2d`.
 fn triangulate(
     mesh: &Mesh,
-    region: &[usize],
     outline: &Outline,
     flat: &impl Fn(u32) -> DVec2,
+    triangles2d: &[[DVec2; 3]],
 ) -> Option<Vec<[[f64; 3]; 3]>> {
     let mut cdt: ConstrainedDelaunayTriangulation<Point2<f64>> = ConstrainedDelaunayTriangulation::new();
     // In a fixed order: where corners lie on one circle (a rectangle's), the order of insertion
@@ -193,7 +195,6 @@ fn triangulate(
         }
         cdt.add_constraint(ha, hb);
     }
-    let triangles2d: Vec<[DVec2; 3]> = region.iter().map(|&t| mesh.triangles[t].map(flat)).collect();
     let mut kept = Vec::new();
     let mut kept_area = 0.0;
     for face in cdt.inner_faces() {
@@ -209,18 +210,15 @@ fn triangulate(
     }
     // Every face lies wholly inside or outside when the whole outline is in the triangulation:
     // then the kept area is the region's.
-    let region_area = region_area(mesh, region, flat);
+    let region_area = area(triangles2d);
     ((kept_area - region_area).abs() <= 1e-9 * region_area.max(f64::MIN_POSITIVE)).then_some(kept)
 }
 
-/// The area of a region's triangles in the plane, as `flat` places their corners.
-fn region_area(mesh: &Mesh, region: &[usize], flat: &impl Fn(u32) -> DVec2) -> f64 {
-    region
+/// The area of triangles in the plane.
+fn area(triangles: &[[DVec2; 3]]) -> f64 {
+    triangles
         .iter()
-        .map(|&t| {
-            let q = mesh.triangles[t].map(flat);
-            cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0
-        })
+        .map(|q| cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0)
         .sum()
 }
 
@@ -385,14 +383,11 @@ mod tests {
             // A millionth: above the rounding of the corners to f32.
             outline.straighten(&flat, 1e-3 * 1e-3);
             let fewer = |t: Option<Vec<[[f64; 3]; 3]>>| t.filter(|t| t.len() < 2);
-            let whole = fewer(triangulate(&mesh, &region, &outline, &flat));
+            let triangles2d = region.map(|t| mesh.triangles[t].map(flat));
+            let whole = fewer(triangulate(&mesh, &outline, &flat, &triangles2d));
             assert_eq!(fewer(retriangulate(&mesh, &region, 1e-3)), whole, "round {round}");
             one += usize::from(whole.is_some());
-            skipped += usize::from(!one_triangle_may_do(
-                &outline,
-                &flat,
-                region_area(&mesh, &region, &flat),
-            ));
+            skipped += usize::from(!one_triangle_may_do(&outline, &flat, area(&triangles2d)));
         }
         assert!(
             one > 2_000 && skipped > 10_000,

@@ -56,7 +56,7 @@ pub fn find(mesh: &Mesh, open_triangles: &[bool], tolerance: f64) -> Vec<Surface
         .par_iter()
         .map(|r| piece_of(mesh, r, open_triangles[r[0]], tolerance))
         .collect();
-    pieces.sort_by(|a, b| b.area.total_cmp(&a.area));
+    pieces.par_sort_by(|a, b| b.area.total_cmp(&a.area));
     pieces
 }
 
@@ -197,13 +197,14 @@ fn triangulate(
     }
     let mut kept = Vec::new();
     let mut kept_area = 0.0;
+    let bins = TriangleBins::new(triangles2d);
     for face in cdt.inner_faces() {
         let corners = face
             .vertices()
             .map(|v| vertex_of_handle[v.fix().index()].expect("an inserted corner"));
         let q = corners.map(flat);
         let centroid = (q[0] + q[1] + q[2]) / 3.0;
-        if triangles2d.iter().any(|t| contains(t, centroid)) {
+        if bins.any_contains(centroid) {
             kept_area += cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0;
             kept.push(corners.map(|v| mesh.positions[v as usize].as_dvec3().to_array()));
         }
@@ -238,6 +239,71 @@ fn one_triangle_may_do(outline: &Outline, flat: &impl Fn(u32) -> DVec2, area: f6
         let triangle = cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0;
         (triangle - area).abs() <= 2e-9 * area + rounding
     })
+}
+
+/// Triangles in the plane, listed in the bins of a grid over their bounds (about one bin a
+/// triangle) that their own bounds meet: where a point lies, those of its bin are tried first.
+struct TriangleBins<'a> {
+    triangles: &'a [[DVec2; 3]],
+    lo: DVec2,
+    /// Bins per unit length along each axis, and along a side.
+    per_unit: DVec2,
+    side: usize,
+    bins: Buckets<u32>,
+}
+
+impl<'a> TriangleBins<'a> {
+    fn new(triangles: &'a [[DVec2; 3]]) -> TriangleBins<'a> {
+        let bounds = |t: &[DVec2; 3]| (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+        let (lo, hi) = triangles
+            .iter()
+            .map(bounds)
+            .fold((DVec2::INFINITY, DVec2::NEG_INFINITY), |(lo, hi), (a, b)| {
+                (lo.min(a), hi.max(b))
+            });
+        let side = (triangles.len() as f64).sqrt().ceil().max(1.0) as usize;
+        let extent = hi - lo;
+        let per_unit = extent.map(|e| if e > 0.0 { side as f64 / e } else { 0.0 });
+        let mut bins = TriangleBins {
+            triangles,
+            lo,
+            per_unit,
+            side,
+            bins: Buckets {
+                starts: vec![0, 0],
+                items: Vec::new(),
+            },
+        };
+        let places: Vec<([usize; 2], [usize; 2])> = triangles
+            .iter()
+            .map(|t| {
+                let (a, b) = bounds(t);
+                (bins.place(a), bins.place(b))
+            })
+            .collect();
+        bins.bins = Buckets::new(
+            side * side,
+            places.iter().enumerate().flat_map(|(i, &(a, b))| {
+                (a[0]..=b[0]).flat_map(move |x| (a[1]..=b[1]).map(move |y| (x * side + y, i as u32)))
+            }),
+        );
+        bins
+    }
+
+    /// The bin of a point, those beyond the grid in the nearest.
+    fn place(&self, p: DVec2) -> [usize; 2] {
+        // A cast saturates, and takes NaN to 0.
+        let at = ((p - self.lo) * self.per_unit).to_array();
+        at.map(|x| (x as usize).min(self.side - 1))
+    }
+
+    /// Whether any triangle contains `p` ([`contains`]): the answer of trying them all, as it
+    /// tries them all where none of its bin does.
+    fn any_contains(&self, p: DVec2) -> bool {
+        let [x, y] = self.place(p);
+        let first = self.bins.get(x * self.side + y);
+        first.iter().any(|&i| contains(&self.triangles[i as usize], p)) || self.triangles.iter().any(|t| contains(t, p))
+    }
 }
 
 fn cross(a: DVec2, b: DVec2) -> f64 {
@@ -393,6 +459,45 @@ mod tests {
             one > 2_000 && skipped > 10_000,
             "{one} as one triangle, {skipped} skipped"
         );
+    }
+
+    #[test]
+    fn triangles_tried_by_bin_first_contain_a_point_where_trying_them_all_does() {
+        let mut rng = fastrand::Rng::with_seed(5);
+        let point = |rng: &mut fastrand::Rng| DVec2::new(rng.f64() * 10.0, rng.f64() * 4.0);
+        let triangles: Vec<[DVec2; 3]> = (0..200)
+            .map(|_| {
+                let a = point(&mut rng);
+                [
+                    a,
+                    a + DVec2::new(rng.f64(), rng.f64()),
+                    a + DVec2::new(-rng.f64(), rng.f64()),
+                ]
+            })
+            .collect();
+        let bins = TriangleBins::new(&triangles);
+        let mut inside = 0;
+        for _ in 0..5_000 {
+            let p = point(&mut rng) * 1.2 - DVec2::splat(0.5);
+            let all = triangles.iter().any(|t| contains(t, p));
+            assert_eq!(bins.any_contains(p), all, "{p}");
+            inside += usize::from(all);
+        }
+        assert!((500..4_500).contains(&inside), "{inside} inside");
+        // Rounding lets a sliver contain a point a step of a float past its corner, at x = 2,
+        // across the line between bins there: 13 triangles over x in [0, 4] make 4 × 4 bins.
+        let sliver = [
+            DVec2::new(2.0, 0.9892988659132093),
+            DVec2::new(3.7352113129209097, 2.8478306551494548),
+            DVec2::new(3.569838707079753, 2.6707051127235966),
+        ];
+        let past = DVec2::new(1.9999999999999998, 0.9892988659132091);
+        let small = |x: f64| [DVec2::new(x, 3.5), DVec2::new(x + 0.25, 3.5), DVec2::new(x, 3.75)];
+        let mut triangles = vec![sliver];
+        triangles.extend((0..12).map(|k| small(k as f64 * 3.75 / 11.0)));
+        let bins = TriangleBins::new(&triangles);
+        assert!(contains(&sliver, past) && bins.place(past)[0] == 1 && bins.place(sliver[0])[0] == 2);
+        assert!(bins.any_contains(past));
     }
 
     /// An n×n grid of squares, two triangles each, on z = 0.

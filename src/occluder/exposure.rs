@@ -772,8 +772,16 @@ fn crack_edges(mesh: &Mesh, boundary: &[BoundaryEdge], width: f64, touching: f64
         })
         .map(|e| (e.a.min(e.b), e.a.max(e.b)))
         .collect();
+    // Only a triangle with two corners on cracks can have an edge along one.
+    let mut on_crack = vec![false; mesh.positions.len()];
+    for &(a, b) in &cracks {
+        (on_crack[a as usize], on_crack[b as usize]) = (true, true);
+    }
     let mut cracked = BTreeMap::new();
     for (t, tri) in mesh.triangles.iter().enumerate() {
+        if tri.iter().filter(|&&v| on_crack[v as usize]).count() < 2 {
+            continue;
+        }
         let edges: [bool; 3] = std::array::from_fn(|k| {
             let (a, b) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
             cracks.contains(&(a.min(b), a.max(b)))

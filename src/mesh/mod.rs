@@ -342,7 +342,8 @@ fn weld_parts(raws: Vec<(String, RawMesh)>) -> Result<Vec<Option<Part>>, IngestE
 pub fn weld_positions(positions: &[Vec3]) -> (Vec<Vec3>, Vec<u32>) {
     let key = |p: Vec3| (p + Vec3::ZERO).to_array().map(f32::to_bits);
     let mut remap = Vec::with_capacity(positions.len());
-    let mut index_of = std::collections::HashMap::with_capacity(positions.len());
+    // Seeded per map, as inputs are untrusted; far quicker than the default hasher.
+    let mut index_of = foldhash::HashMap::with_capacity_and_hasher(positions.len(), Default::default());
     let mut distinct = Vec::new();
     for &p in positions {
         let next = distinct.len() as u32;

@@ -33,10 +33,10 @@ use std::time::Instant;
 /// The stages of a cook, in order, for progress reports.
 pub const STAGES: [&str; 20] = [
     "ingest",
-    "key",
     "orient",
     "openings",
     "surface-pieces",
+    "key",
     "device",
     "surface",
     "inside",
@@ -106,17 +106,27 @@ pub fn cook_with_progress(
 ) -> Result<Cooked, CookError> {
     let cook = &settings.cook;
     let mut run = Run::new(ingest_ms, progress);
-    let key = run.stage("key", || cache_key(&mesh, cook))?;
-    let mut topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
-    let input = InputReport::new(&mesh, ingest, &topology);
-    let openings = run.close_openings(&mut mesh, &mut topology, cook.smallest_hole)?;
+    // The key is of the mesh as given, which orient changes: of a copy, beside the stages that
+    // are mostly serial.
+    let given = mesh.clone();
+    let ((topology, input, openings, pieces), (key, key_ms)) = run.beside(
+        || cache_key(&given, cook),
+        |run| {
+            let mut topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
+            let input = InputReport::new(&mesh, ingest, &topology);
+            let openings = run.close_openings(&mut mesh, &mut topology, cook.smallest_hole)?;
+            let pieces = run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
+                find_surface_pieces(&mesh, &topology)
+            })?;
+            Ok((topology, input, openings, pieces))
+        },
+    )?;
+    drop(given);
+    run.heard("key", key_ms)?;
     // A GPU asked for must be there, even where the surface alone makes the occluder.
     if cook.device == gpu::DeviceChoice::Gpu {
         run.open_device(cook.device)?;
     }
-    let pieces = run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
-        find_surface_pieces(&mesh, &topology)
-    })?;
     let prepared = Prepared {
         mesh,
         topology,
@@ -160,10 +170,11 @@ const SURFACE_ALONE_AREA: f64 = 0.5;
 /// surface's area to be worth a selection among them alone.
 fn could_be_enough(pieces: &[SurfacePiece], max_triangles: usize) -> bool {
     let density = |p: &SurfacePiece| p.area / p.triangles.len().max(1) as f64;
-    let mut densest: Vec<&SurfacePiece> = pieces.iter().collect();
-    densest.sort_by(|a, b| density(b).total_cmp(&density(a)));
+    // Densest first, those as dense in the pieces' order: keys sorted, not the pieces.
+    let mut densest: Vec<(f64, usize)> = pieces.iter().map(density).zip(0..).collect();
+    densest.par_sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     let (mut triangles, mut held) = (0, 0.0);
-    for p in densest {
+    for p in densest.into_iter().map(|(_, i)| &pieces[i]) {
         if triangles + p.triangles.len() <= max_triangles {
             triangles += p.triangles.len();
             held += p.area;
@@ -908,6 +919,35 @@ mod tests {
         assert!(r.occluder.quads > 0 && r.timings_ms.get("quads") > 0.0, "{r:?}");
         // Wall time: the ingest it was given, and the stages after.
         assert!(r.cook_ms > 2.0 && r.total_ms() == r.cook_ms, "{}", r.cook_ms);
+    }
+
+    #[test]
+    fn the_key_found_beside_orient_is_of_the_mesh_as_given_and_heard_after_the_surface_pieces() {
+        // Inside out: orient turns every triangle.
+        let mut given = crate::mesh::shapes::torus(1.0, 0.45, 32, 16);
+        given.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+        let mut oriented = given.clone();
+        orient_closed_components(&mut oriented);
+        let cook = crate::config::load(None, &[]).expect("defaults load").cook;
+        assert_ne!(cache_key(&given, &cook), cache_key(&oriented, &cook));
+        let (stages, r) = heard_stages(given.clone());
+        in_order(&stages, &["orient", "surface-pieces", "key", "surface"]);
+        assert_eq!(r.key, cache_key(&given, &cook));
+    }
+
+    #[test]
+    fn the_densest_pieces_as_dense_as_others_are_taken_in_the_pieces_order() {
+        let piece = |triangles: usize, area: f64| SurfacePiece {
+            triangles: vec![[[0.0; 3]; 3]; triangles],
+            area,
+            source_triangles: triangles,
+            double_sided: false,
+        };
+        // Two as dense: the first taken fills the budget of two triangles (2 of 3.1 held), or
+        // leaves room for the least dense only (1.1 held).
+        let (a, b, least) = (piece(2, 2.0), piece(1, 1.0), piece(1, 0.1));
+        assert!(could_be_enough(&[a.clone(), b.clone(), least.clone()], 2));
+        assert!(!could_be_enough(&[b, a, least], 2));
     }
 
     #[test]

@@ -33,6 +33,7 @@ use crate::voxel::winding::WindingField;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap, HashSet};
+use std::sync::{Mutex, PoisonError};
 
 /// Directions on the whole sphere; those not below the object are used.
 const DIRECTIONS: usize = 256;
@@ -123,7 +124,7 @@ impl OpenViews {
         // Each view's farthest depths over its neighbourhoods, one image after another, as the
         // GPU takes them. On the CPU each view is drawn, eroded and filtered in turn through one
         // image a thread.
-        let mut depths = vec![0f32; views.len() * PIXELS * PIXELS];
+        let mut depths = depth_memory(views.len() * PIXELS * PIXELS);
         let (sky_depths, eye_depths) = depths.split_at_mut(sky_views * PIXELS * PIXELS);
         let (sky, eyes) = views.split_at(sky_views);
         let drawn = split.uncracked.as_ref().unwrap_or(mesh);
@@ -598,6 +599,35 @@ fn corner_index(grid: &Grid, [x, y, z]: [usize; 3]) -> usize {
     (x * (grid.dims[1] + 1) + y) * (grid.dims[2] + 1) + z
 }
 
+/// Depth image memory a finished cook left for the next in this process: pages faulted in and
+/// zeroed by the kernel cost a worker that cooks mesh after mesh more CPU time than some meshes'
+/// whole views take to draw. The largest returned: at most 160 sky views and six for each of
+/// `MAX_EYES` cameras, 80 MB.
+static SPARE_DEPTHS: Mutex<Vec<f32>> = Mutex::new(Vec::new());
+
+/// Memory for `len` depths, of whatever values: each is written before it is read. Fresh memory
+/// has room for the most views, and is left to the kernel to zero where the views first write
+/// it, on every thread.
+fn depth_memory(len: usize) -> Vec<f32> {
+    let mut depths = std::mem::take(&mut *SPARE_DEPTHS.lock().unwrap_or_else(PoisonError::into_inner));
+    if depths.capacity() < len {
+        let most = (DIRECTIONS / 2 + HORIZON_DIRECTIONS + 6 * MAX_EYES) * PIXELS * PIXELS;
+        depths = vec![0.0; len.max(most)];
+    }
+    depths.truncate(len);
+    depths.resize(len, 0.0);
+    depths
+}
+
+impl Drop for OpenViews {
+    fn drop(&mut self) {
+        let mut spare = SPARE_DEPTHS.lock().unwrap_or_else(PoisonError::into_inner);
+        if spare.capacity() < self.depths.capacity() {
+            *spare = std::mem::take(&mut self.depths);
+        }
+    }
+}
+
 /// The tiles whose pixel centres may lie in [a, b] along one axis of the screen.
 fn tile_range(a: f64, b: f64) -> std::ops::RangeInclusive<usize> {
     let last = (PIXELS / TILE - 1) as f64;
@@ -824,6 +854,22 @@ mod tests {
         let topology = orient_closed_components(&mut mesh);
         let field = WindingField::new(&mesh, &topology.boundary);
         OpenViews::new(&mesh, &topology.boundary, || &field, None).expect("the CPU draws")
+    }
+
+    #[test]
+    fn depths_drawn_into_memory_a_cook_left_are_those_drawn_into_fresh_memory() {
+        let first = views_of(split_cube(0.004));
+        // Left holding what no view draws, and more of it than the views need.
+        *SPARE_DEPTHS.lock().unwrap() = vec![f32::NAN; 2 * first.depths.len()];
+        let again = views_of(split_cube(0.004));
+        assert_eq!(first.depths.len(), again.depths.len());
+        assert!(
+            first
+                .depths
+                .iter()
+                .zip(&again.depths)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
     }
 
     fn panel(corners: [[f64; 3]; 4]) -> Panel {

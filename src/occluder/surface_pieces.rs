@@ -245,11 +245,25 @@ fn one_triangle_may_do(outline: &Outline, flat: &impl Fn(u32) -> DVec2, area: f6
 /// triangle) that their own bounds meet: where a point lies, those of its bin are tried first.
 struct TriangleBins<'a> {
     triangles: &'a [[DVec2; 3]],
+    grid: BinGrid,
+    bins: Buckets<u32>,
+}
+
+/// `side` × `side` bins from `lo`, `per_unit` bins per unit length along each axis.
+#[derive(Clone, Copy)]
+struct BinGrid {
     lo: DVec2,
-    /// Bins per unit length along each axis, and along a side.
     per_unit: DVec2,
     side: usize,
-    bins: Buckets<u32>,
+}
+
+impl BinGrid {
+    /// The bin of a point, those beyond the grid in the nearest.
+    fn place(&self, p: DVec2) -> [usize; 2] {
+        // A cast saturates, and takes NaN to 0.
+        let at = ((p - self.lo) * self.per_unit).to_array();
+        at.map(|x| (x as usize).min(self.side - 1))
+    }
 }
 
 impl<'a> TriangleBins<'a> {
@@ -262,46 +276,24 @@ impl<'a> TriangleBins<'a> {
                 (lo.min(a), hi.max(b))
             });
         let side = (triangles.len() as f64).sqrt().ceil().max(1.0) as usize;
-        let extent = hi - lo;
-        let per_unit = extent.map(|e| if e > 0.0 { side as f64 / e } else { 0.0 });
-        let mut bins = TriangleBins {
-            triangles,
-            lo,
-            per_unit,
-            side,
-            bins: Buckets {
-                starts: vec![0, 0],
-                items: Vec::new(),
-            },
-        };
-        let places: Vec<([usize; 2], [usize; 2])> = triangles
-            .iter()
-            .map(|t| {
-                let (a, b) = bounds(t);
-                (bins.place(a), bins.place(b))
-            })
-            .collect();
-        bins.bins = Buckets::new(
+        let per_unit = (hi - lo).map(|e| if e > 0.0 { side as f64 / e } else { 0.0 });
+        let grid = BinGrid { lo, per_unit, side };
+        let bins = Buckets::new(
             side * side,
-            places.iter().enumerate().flat_map(|(i, &(a, b))| {
-                (a[0]..=b[0]).flat_map(move |x| (a[1]..=b[1]).map(move |y| (x * side + y, i as u32)))
+            triangles.iter().enumerate().flat_map(move |(i, t)| {
+                let (a, b) = bounds(t);
+                let ([x0, y0], [x1, y1]) = (grid.place(a), grid.place(b));
+                (x0..=x1).flat_map(move |x| (y0..=y1).map(move |y| (x * side + y, i as u32)))
             }),
         );
-        bins
-    }
-
-    /// The bin of a point, those beyond the grid in the nearest.
-    fn place(&self, p: DVec2) -> [usize; 2] {
-        // A cast saturates, and takes NaN to 0.
-        let at = ((p - self.lo) * self.per_unit).to_array();
-        at.map(|x| (x as usize).min(self.side - 1))
+        TriangleBins { triangles, grid, bins }
     }
 
     /// Whether any triangle contains `p` ([`contains`]): the answer of trying them all, as it
     /// tries them all where none of its bin does.
     fn any_contains(&self, p: DVec2) -> bool {
-        let [x, y] = self.place(p);
-        let first = self.bins.get(x * self.side + y);
+        let [x, y] = self.grid.place(p);
+        let first = self.bins.get(x * self.grid.side + y);
         first.iter().any(|&i| contains(&self.triangles[i as usize], p)) || self.triangles.iter().any(|t| contains(t, p))
     }
 }
@@ -496,7 +488,7 @@ mod tests {
         let mut triangles = vec![sliver];
         triangles.extend((0..12).map(|k| small(k as f64 * 3.75 / 11.0)));
         let bins = TriangleBins::new(&triangles);
-        assert!(contains(&sliver, past) && bins.place(past)[0] == 1 && bins.place(sliver[0])[0] == 2);
+        assert!(contains(&sliver, past) && bins.grid.place(past)[0] == 1 && bins.grid.place(sliver[0])[0] == 2);
         assert!(bins.any_contains(past));
     }
 

@@ -205,7 +205,7 @@ fn triangulate(
         let q = corners.map(flat);
         let centroid = (q[0] + q[1] + q[2]) / 3.0;
         if bins.any_contains(centroid) {
-            kept_area += cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0;
+            kept_area += triangle_area(&q);
             kept.push(corners.map(|v| mesh.positions[v as usize].as_dvec3().to_array()));
         }
     }
@@ -217,10 +217,11 @@ fn triangulate(
 
 /// The area of triangles in the plane.
 fn area(triangles: &[[DVec2; 3]]) -> f64 {
-    triangles
-        .iter()
-        .map(|q| cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0)
-        .sum()
+    triangles.iter().map(triangle_area).sum()
+}
+
+fn triangle_area(q: &[DVec2; 3]) -> f64 {
+    cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0
 }
 
 /// Whether a triangulation of an outline of four corners can keep a single triangle, one on
@@ -235,9 +236,8 @@ fn one_triangle_may_do(outline: &Outline, flat: &impl Fn(u32) -> DVec2, area: f6
     let size = corners.iter().map(|c| c.x.abs() + c.y.abs()).fold(0.0, f64::max);
     let rounding = 1e-12 * size * size;
     (0..4).any(|left_out| {
-        let q: Vec<DVec2> = (0..4).filter(|&k| k != left_out).map(|k| corners[k]).collect();
-        let triangle = cross(q[1] - q[0], q[2] - q[0]).abs() / 2.0;
-        (triangle - area).abs() <= 2e-9 * area + rounding
+        let q: [DVec2; 3] = std::array::from_fn(|k| corners[k + usize::from(k >= left_out)]);
+        (triangle_area(&q) - area).abs() <= 2e-9 * area + rounding
     })
 }
 

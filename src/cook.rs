@@ -107,10 +107,10 @@ pub fn cook_with_progress(
     let cook = &settings.cook;
     let mut run = Run::new(ingest_ms, progress);
     // The key is of the mesh as given, which orient changes: of a copy, beside the stages that
-    // are mostly serial.
+    // are mostly serial, and dropped once the key is found.
     let given = mesh.clone();
     let ((topology, input, openings, pieces), (key, key_ms)) = run.beside(
-        || cache_key(&given, cook),
+        move || cache_key(&given, cook),
         |run| {
             let mut topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
             let input = InputReport::new(&mesh, ingest, &topology);
@@ -121,7 +121,6 @@ pub fn cook_with_progress(
             Ok((topology, input, openings, pieces))
         },
     )?;
-    drop(given);
     run.heard("key", key_ms)?;
     // A GPU asked for must be there, even where the surface alone makes the occluder.
     if cook.device == gpu::DeviceChoice::Gpu {

@@ -11,10 +11,12 @@
 //!
 //! Closed meshes have no boundary edges and cost one column pass.
 
+mod far_field;
 pub mod gpu;
 
 use super::{Grid, columns::ColumnCrossings, columns::column_hit};
 use crate::mesh::{BoundaryEdge, Mesh};
+use far_field::FarField;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -33,7 +35,22 @@ const MARGIN: f64 = 0.15;
 /// term is continuous, and smooth away from the boundary edges. It is computed exactly every
 /// `STRIDE` voxels and interpolated between, except where it changes fast (near an edge) or the
 /// result is close to the threshold: there every voxel is computed exactly.
+///
+/// Most columns are settled by [`Curtain::bounded_terms`]: each decision there is the exact
+/// terms' wherever the bound leaves no doubt, and the rest are made on exact terms, so the
+/// voxels are those of exact terms alone.
 pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEdge], grid: &Grid) -> Vec<bool> {
+    classify_by(crossings, mesh, boundary, grid, Curtain::bounded_terms)
+}
+
+/// [`classify`] with the bounded terms from `bounded_terms`.
+fn classify_by(
+    crossings: &ColumnCrossings,
+    mesh: &Mesh,
+    boundary: &[BoundaryEdge],
+    grid: &Grid,
+    bounded_terms: impl Fn(&Curtain, &[DVec3]) -> (Vec<f64>, Vec<f64>) + Sync,
+) -> Vec<bool> {
     let mut inside = vec![false; grid.len()];
     let (ny, nz) = (grid.dims[1], grid.dims[2]);
     // Per voxel of column c, the signed count of the surface's crossings above it.
@@ -61,36 +78,90 @@ pub fn classify(crossings: &ColumnCrossings, mesh: &Mesh, boundary: &[BoundaryEd
             let sampled: Vec<DVec3> = (0..counts.len())
                 .flat_map(|k| samples.iter().map(move |&z| centre((k, z))))
                 .collect();
-            let terms = curtain.terms(&sampled);
-            let mut exact = Vec::new();
-            for (k, (column, terms)) in columns
-                .chunks_mut(nz)
-                .zip(terms.chunks_exact(samples.len()))
-                .enumerate()
-            {
-                let counts = &counts[k];
-                for (&z, &b) in samples.iter().zip(terms) {
-                    column[z] = counts[z] + b >= 0.5;
-                }
-                for s in 1..samples.len() {
-                    let (z0, z1, b0, b1) = (samples[s - 1], samples[s], terms[s - 1], terms[s]);
-                    let smooth = (b1 - b0).abs() < MAX_STEP;
-                    for z in z0 + 1..z1 {
-                        let estimate = counts[z] + b0 + (b1 - b0) * (z - z0) as f64 / (z1 - z0) as f64;
-                        if smooth && (estimate - 0.5).abs() > MARGIN {
-                            column[z] = estimate >= 0.5;
-                        } else {
-                            exact.push((k, z));
-                        }
-                    }
+            // Each column settled by the bounded terms where they settle every decision, else
+            // by the exact ones.
+            let (terms, bounds) = bounded_terms(&curtain, &sampled);
+            let (mut exact, mut unsettled) = (Vec::new(), Vec::new());
+            for (k, column) in columns.chunks_mut(nz).enumerate() {
+                let at = k * samples.len()..(k + 1) * samples.len();
+                let (terms, bounds) = (&terms[at.clone()], &bounds[at]);
+                let left = settle_column(column, &counts[k], &samples, terms, bounds);
+                match left {
+                    Some(left) => exact.extend(left.into_iter().map(|z| (k, z))),
+                    None => unsettled.push(k),
                 }
             }
-            let terms = curtain.terms(&exact.iter().copied().map(centre).collect::<Vec<_>>());
-            for (&(k, z), &b) in exact.iter().zip(&terms) {
+            let points = |&k: &usize| samples.iter().map(move |&z| centre((k, z)));
+            let terms = curtain.terms(&unsettled.iter().flat_map(points).collect::<Vec<_>>());
+            for (&k, terms) in unsettled.iter().zip(terms.chunks_exact(samples.len())) {
+                let column = &mut columns[k * nz..(k + 1) * nz];
+                let left = settle_column(column, &counts[k], &samples, terms, &vec![0.0; samples.len()]);
+                exact.extend(
+                    left.expect("exact terms settle every decision")
+                        .into_iter()
+                        .map(|z| (k, z)),
+                );
+            }
+            // The voxels left to their own terms: bounded first, then exact where the bound
+            // leaves them open.
+            let (terms, bounds) = bounded_terms(&curtain, &exact.iter().copied().map(centre).collect::<Vec<_>>());
+            let mut open = Vec::new();
+            for (&(k, z), (&b, &bound)) in exact.iter().zip(terms.iter().zip(&bounds)) {
+                match at_least(counts[k][z] + b, 0.5, bound) {
+                    Some(inside) => columns[k * nz + z] = inside,
+                    None => open.push((k, z)),
+                }
+            }
+            let terms = curtain.terms(&open.iter().copied().map(centre).collect::<Vec<_>>());
+            for (&(k, z), &b) in open.iter().zip(&terms) {
                 columns[k * nz + z] = counts[k][z] + b >= 0.5;
             }
         });
     inside
+}
+
+/// Decides a column's voxels from the curtain term at `samples` (`terms`, each within its
+/// bound of the exact term): each sample by its own term, the voxels between by interpolation
+/// where the term changes slowly and the estimate lies clear of the threshold. Returns the
+/// voxels left to their own terms, or None where a bound leaves a decision open; with every
+/// bound 0, every decision is the exact terms' and none is left open.
+fn settle_column(
+    column: &mut [bool],
+    counts: &[f64],
+    samples: &[usize],
+    terms: &[f64],
+    bounds: &[f64],
+) -> Option<Vec<usize>> {
+    let mut left = Vec::new();
+    for ((&z, &b), &bound) in samples.iter().zip(terms).zip(bounds) {
+        column[z] = at_least(counts[z] + b, 0.5, bound)?;
+    }
+    for s in 1..samples.len() {
+        let (z0, z1, b0, b1) = (samples[s - 1], samples[s], terms[s - 1], terms[s]);
+        let smooth = !at_least((b1 - b0).abs(), MAX_STEP, bounds[s - 1] + bounds[s])?;
+        // The estimate weighs the two samples' terms, so it is off by no more than either.
+        let bound = bounds[s - 1].max(bounds[s]);
+        for z in z0 + 1..z1 {
+            let estimate = counts[z] + b0 + (b1 - b0) * (z - z0) as f64 / (z1 - z0) as f64;
+            if smooth && !at_least(MARGIN, (estimate - 0.5).abs(), bound)? {
+                column[z] = at_least(estimate, 0.5, bound)?;
+            } else {
+                left.push(z);
+            }
+        }
+    }
+    Some(left)
+}
+
+/// Whether x ≥ t, for every value within `bound` of x: None where the bound leaves it open.
+/// With a bound of 0, x ≥ t.
+fn at_least(x: f64, t: f64, bound: f64) -> Option<bool> {
+    match bound {
+        0.0 => Some(x >= t),
+        _ if x - bound >= t => Some(true),
+        _ if x + bound < t => Some(false),
+        _ => None,
+    }
 }
 
 /// Columns whose points go through the curtain's edges together: more lanes of work an edge.
@@ -132,6 +203,7 @@ pub struct Curtain {
     vertices: Vec<DVec3>,
     /// (start, end, weight): an edge taken `weight` times, backwards where negative.
     edges: Vec<(usize, usize, i32)>,
+    far_field: FarField,
 }
 
 impl Curtain {
@@ -144,8 +216,12 @@ impl Curtain {
                 vertices.len() - 1
             })
         };
-        let edges = boundary.iter().map(|e| (index(e.a), index(e.b), e.weight)).collect();
-        Curtain { vertices, edges }
+        let edges: Vec<_> = boundary.iter().map(|e| (index(e.a), index(e.b), e.weight)).collect();
+        Curtain {
+            far_field: FarField::new(&vertices, &edges),
+            vertices,
+            edges,
+        }
     }
 
     /// The curtain's share of w(p), from the open boundary alone.
@@ -160,54 +236,93 @@ impl Curtain {
     /// edge, the points' products grow side by side, none waiting on the last multiplication,
     /// without a branch, so that the points go through in vector lanes.
     pub fn terms(&self, points: &[DVec3]) -> Vec<f64> {
-        self.terms_by(points, Curtain::add_edges_fast)
+        self.terms_by(points, add_edges_fast)
     }
 
     /// [`Curtain::terms`], the edges added by `add_edges`.
-    fn terms_by(&self, points: &[DVec3], add_edges: impl Fn(&Self, &mut Angles)) -> Vec<f64> {
+    fn terms_by(
+        &self,
+        points: &[DVec3],
+        add_edges: impl Fn(&[DVec3], &[(usize, usize, i32)], &mut Angles),
+    ) -> Vec<f64> {
         if points.is_empty() {
             return Vec::new();
         }
         let mut angles = Angles::new(points);
-        add_edges(self, &mut angles);
-        // Ω = 2·(half angles), w = Ω / 4π.
-        angles.radians().map(|radians| radians / PI * 0.5).collect()
+        add_edges(&self.vertices, &self.edges, &mut angles);
+        angles.terms().collect()
     }
 
-    /// [`Curtain::add_edges`] in AVX2's wider vector lanes where the CPU has them: the same
-    /// operations, so the same values to the bit.
-    fn add_edges_fast(&self, angles: &mut Angles) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2.
-            return unsafe { self.add_edges_avx2(angles) };
+    /// [`Curtain::terms`] near enough, each with a bound on how far it may be from it: loops
+    /// of edges far from all the points count as dipoles ([`far_field`]), the rest exactly.
+    /// The bound takes in a billionth for rounding, far more than the exact sum's own.
+    pub fn bounded_terms(&self, points: &[DVec3]) -> (Vec<f64>, Vec<f64>) {
+        let (mut terms, mut bounds) = (vec![0.0; points.len()], vec![ROUNDING; points.len()]);
+        // In groups of points at about one height: the nearer the points lie to each other,
+        // the more loops are far from them all.
+        let mut order: Vec<usize> = (0..points.len()).collect();
+        order.sort_by(|&a, &b| points[a].z.total_cmp(&points[b].z));
+        for group in order.chunks(BOUNDED_GROUP) {
+            let points: Vec<DVec3> = group.iter().map(|&i| points[i]).collect();
+            let (lo, hi) = points
+                .iter()
+                .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
+                    (lo.min(p), hi.max(p))
+                });
+            let split = self.far_field.split(lo, hi);
+            let mut angles = Angles::new(&points);
+            add_edges_fast(&split.near_vertices, &split.near_edges, &mut angles);
+            let mut near: Vec<f64> = angles.terms().collect();
+            let mut far = vec![ROUNDING; points.len()];
+            self.far_field.add_far(&split, &points, &mut near, &mut far);
+            for ((&i, term), bound) in group.iter().zip(near).zip(far) {
+                (terms[i], bounds[i]) = (term, bound);
+            }
         }
-        self.add_edges(angles)
+        (terms, bounds)
     }
+}
 
+/// Points whose bounded curtain terms are found together.
+const BOUNDED_GROUP: usize = 64;
+
+/// What [`Curtain::bounded_terms`] allows for rounding.
+const ROUNDING: f64 = 1e-9;
+
+/// [`add_edges`] in AVX2's wider vector lanes where the CPU has them: the same operations, so
+/// the same values to the bit.
+fn add_edges_fast(vertices: &[DVec3], edges: &[(usize, usize, i32)], angles: &mut Angles) {
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn add_edges_avx2(&self, angles: &mut Angles) {
-        self.add_edges(angles)
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { add_edges_avx2(vertices, edges, angles) };
     }
+    add_edges(vertices, edges, angles)
+}
 
-    /// Adds each edge's half solid angle to `angles`, each vertex's distances from the points
-    /// found first (a row a vertex).
-    #[inline(always)]
-    fn add_edges(&self, angles: &mut Angles) {
-        let n = angles.turns.len();
-        let [px, py, pz] = angles.at.each_ref().map(|c| &c[..n]);
-        let mut distances = vec![0.0; self.vertices.len() * n];
-        for (&v, row) in self.vertices.iter().zip(distances.chunks_exact_mut(n)) {
-            for (k, distance) in row.iter_mut().enumerate() {
-                *distance = (v - DVec3::new(px[k], py[k], pz[k])).length();
-            }
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn add_edges_avx2(vertices: &[DVec3], edges: &[(usize, usize, i32)], angles: &mut Angles) {
+    add_edges(vertices, edges, angles)
+}
+
+/// Adds each edge's half solid angle to `angles` (an edge's ends index `vertices`, its weight
+/// says how many times, backwards where negative), each vertex's distances from the points
+/// found first (a row a vertex).
+#[inline(always)]
+fn add_edges(vertices: &[DVec3], edges: &[(usize, usize, i32)], angles: &mut Angles) {
+    let n = angles.turns.len();
+    let [px, py, pz] = angles.at.each_ref().map(|c| &c[..n]);
+    let mut distances = vec![0.0; vertices.len() * n];
+    for (&v, row) in vertices.iter().zip(distances.chunks_exact_mut(n)) {
+        for (k, distance) in row.iter_mut().enumerate() {
+            *distance = (v - DVec3::new(px[k], py[k], pz[k])).length();
         }
-        for &(a, b, weight) in &self.edges {
-            let lengths = [&distances[a * n..][..n], &distances[b * n..][..n]];
-            for _ in 0..weight.unsigned_abs() {
-                angles.add_edge([self.vertices[a], self.vertices[b]], lengths, weight < 0);
-            }
+    }
+    for &(a, b, weight) in edges {
+        let lengths = [&distances[a * n..][..n], &distances[b * n..][..n]];
+        for _ in 0..weight.unsigned_abs() {
+            angles.add_edge([vertices[a], vertices[b]], lengths, weight < 0);
         }
     }
 }
@@ -267,9 +382,11 @@ impl Angles {
         }
     }
 
-    fn radians(&self) -> impl Iterator<Item = f64> + '_ {
+    /// Each point's curtain term: Ω = 2·(half angles), w = Ω / 4π.
+    fn terms(&self) -> impl Iterator<Item = f64> + '_ {
         let [x, y] = &self.product;
-        (x.iter().zip(y).zip(&self.turns)).map(|((&x, &y), &turns)| y.atan2(x) + std::f64::consts::TAU * turns as f64)
+        (x.iter().zip(y).zip(&self.turns))
+            .map(|((&x, &y), &turns)| (y.atan2(x) + std::f64::consts::TAU * turns as f64) / PI * 0.5)
     }
 }
 
@@ -480,8 +597,109 @@ mod tests {
             assert_eq!(term.to_bits(), curtain.term(*p).to_bits());
         }
         // The portable lanes, against those `terms` chose.
-        let portable = curtain.terms_by(&points, Curtain::add_edges);
+        let portable = curtain.terms_by(&points, add_edges);
         assert_eq!(portable.len(), points.len());
         assert!(portable.iter().zip(&together).all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// `count` small loops of edges (bent polygons, some wound backwards, some taken twice)
+    /// over a wide box, as a mesh's boundary.
+    fn scattered_loops(rng: &mut fastrand::Rng, count: usize) -> (Mesh, Vec<BoundaryEdge>) {
+        let mut mesh = Mesh::default();
+        let mut boundary = Vec::new();
+        for l in 0..count {
+            let centre = glam::Vec3::new(rng.f32() * 100.0, rng.f32() * 100.0, rng.f32() * 10.0);
+            let (sides, size) = (3 + rng.u32(0..6), 0.2 + rng.f32());
+            let first = mesh.positions.len() as u32;
+            for k in 0..sides {
+                let angle = std::f32::consts::TAU * k as f32 / sides as f32;
+                let bend = (rng.f32() - 0.5) * size;
+                let rim = glam::Vec3::new(angle.cos(), 0.7 * angle.sin(), 0.3 * angle.sin() + bend);
+                mesh.positions.push(centre + size * rim);
+            }
+            let weight = [1, -1, 2][l % 3];
+            boundary.extend((0..sides).map(|k| BoundaryEdge {
+                a: first + k,
+                b: first + (k + 1) % sides,
+                weight,
+            }));
+        }
+        (mesh, boundary)
+    }
+
+    #[test]
+    fn bounded_terms_lie_within_their_bounds_of_the_exact_terms() {
+        let mut rng = fastrand::Rng::with_seed(31);
+        // Clusters of points, some among the loops and on their vertices.
+        let points = |rng: &mut fastrand::Rng, mesh: &Mesh| -> Vec<DVec3> {
+            (0..40)
+                .flat_map(|_| {
+                    let at = DVec3::new(rng.f64() * 110.0 - 5.0, rng.f64() * 110.0 - 5.0, rng.f64() * 14.0 - 2.0);
+                    let spread: Vec<DVec3> = (0..64)
+                        .map(|k| match k % 16 {
+                            0 => mesh.positions[rng.usize(0..mesh.positions.len())].as_dvec3(),
+                            _ => at + DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 3.0,
+                        })
+                        .collect();
+                    spread
+                })
+                .collect()
+        };
+        let (mesh, boundary) = scattered_loops(&mut rng, 400);
+        let curtain = Curtain::new(&mesh, &boundary);
+        let points = points(&mut rng, &mesh);
+        let (terms, bounds) = curtain.bounded_terms(&points);
+        let exact = curtain.terms(&points);
+        let mut far = 0;
+        for k in 0..points.len() {
+            let off = (terms[k] - exact[k]).abs();
+            assert!(
+                off <= bounds[k],
+                "point {k}: {} against {}, bound {}",
+                terms[k],
+                exact[k],
+                bounds[k]
+            );
+            far += usize::from(bounds[k] > ROUNDING && bounds[k] < 0.01);
+        }
+        // The dipoles stand in for loops at most points, and their bounds settle decisions.
+        assert!(far > points.len() / 2, "{far} of {} points", points.len());
+        // Edges in no closed loop are always summed exactly.
+        let (mesh, boundary) = random_edges(&mut rng, 100, 200);
+        let curtain = Curtain::new(&mesh, &boundary);
+        let points: Vec<DVec3> = (0..300)
+            .map(|_| DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 30.0)
+            .collect();
+        let (terms, bounds) = curtain.bounded_terms(&points);
+        for ((term, exact), bound) in terms.iter().zip(curtain.terms(&points)).zip(bounds) {
+            assert_eq!(bound, ROUNDING);
+            assert!((term - exact).abs() <= bound);
+        }
+    }
+
+    #[test]
+    fn voxels_settled_by_bounded_terms_are_those_of_exact_terms() {
+        // A torus with many small holes, so that most loops are far from most columns.
+        let mut mesh = crate::mesh::shapes::torus(10.0, 2.0, 120, 24);
+        mesh.triangles = (0..mesh.triangles.len())
+            .filter(|t| t % 14 > 1)
+            .map(|t| mesh.triangles[t])
+            .collect();
+        let topology = crate::mesh::topology::orient_closed_components(&mut mesh);
+        let (lo, hi) = mesh.bounds();
+        let grid = Grid::fit(lo, hi, 48);
+        let crossings = ColumnCrossings::build(&mesh, &grid);
+        let boundary = &topology.boundary;
+        let bounded = classify(&crossings, &mesh, boundary, &grid);
+        let exact = classify_by(&crossings, &mesh, boundary, &grid, |curtain, points| {
+            (curtain.terms(points), vec![0.0; points.len()])
+        });
+        assert_eq!(bounded, exact);
+        assert!(exact.iter().any(|&v| v));
+        // The bounded terms stood in for the exact ones.
+        let curtain = Curtain::new(&mesh, boundary);
+        let centres: Vec<DVec3> = (0..grid.dims[2]).map(|z| grid.center(20, 24, z)).collect();
+        let (_, bounds) = curtain.bounded_terms(&centres);
+        assert!(bounds.iter().all(|&b| b > ROUNDING && b < 0.05), "{bounds:?}");
     }
 }

@@ -4,8 +4,9 @@
 //! ends). Close a loop's curtain with a fan from the loop's centre: the fan, the curtain and the
 //! curtain's bottom at infinity bound a region, and a point outside the loop's footprint (its
 //! bounding box in x and y) lies outside it, as its upward ray meets neither fan nor curtain.
-//! There the curtain's solid angle is the fan's, negated, and seen from afar the fan's is that
-//! of a dipole: its vector area at the centre. Over a fan of area S within R of the centre, a
+//! There the curtain's solid angle, as the curtain term sums it, is the fan's (the triangles
+//! from the centre to each edge's ends, in the edge's direction), and seen from afar the fan's
+//! is that of a dipole: its vector area at the centre. Over a fan of area S within R of the centre, a
 //! point r away sees the dipole's solid angle off by at most 2·S·R / (r − R)³, as the kernel
 //! (x − p) / |x − p|³ moves by at most 2 / (r − R)³ per unit of x. Loops near one another share
 //! one dipole in a tree.

@@ -117,7 +117,17 @@ fn edge_uses(mesh: &Mesh) -> Vec<((u32, u32), EdgeUses)> {
 
 /// Connected components over shared vertices, numbered densely from 0, one entry per vertex.
 pub fn components(mesh: &Mesh) -> Vec<u32> {
-    let mut parent: Vec<u32> = (0..mesh.positions.len() as u32).collect();
+    let links = mesh
+        .triangles
+        .iter()
+        .flat_map(|tri| [(tri[0], tri[1]), (tri[0], tri[2])]);
+    linked_components(mesh.positions.len(), links)
+}
+
+/// Connected components of `count` vertices joined by `links`, numbered densely from 0 in the
+/// order of their first vertex, one entry per vertex.
+pub fn linked_components(count: usize, links: impl IntoIterator<Item = (u32, u32)>) -> Vec<u32> {
+    let mut parent: Vec<u32> = (0..count as u32).collect();
     fn root(parent: &mut [u32], mut x: u32) -> u32 {
         while parent[x as usize] != x {
             parent[x as usize] = parent[parent[x as usize] as usize];
@@ -125,12 +135,10 @@ pub fn components(mesh: &Mesh) -> Vec<u32> {
         }
         x
     }
-    for tri in &mesh.triangles {
-        for k in 1..3 {
-            let (ra, rb) = (root(&mut parent, tri[0]), root(&mut parent, tri[k]));
-            if ra != rb {
-                parent[ra.max(rb) as usize] = ra.min(rb);
-            }
+    for (a, b) in links {
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        if ra != rb {
+            parent[ra.max(rb) as usize] = ra.min(rb);
         }
     }
     let mut label = vec![u32::MAX; parent.len()];

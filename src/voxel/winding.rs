@@ -15,12 +15,13 @@ mod far_field;
 pub mod gpu;
 
 use super::{Grid, columns::ColumnCrossings, columns::column_hit};
-use crate::mesh::{BoundaryEdge, Mesh};
+use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use far_field::FarField;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::f64::consts::PI;
+use std::sync::OnceLock;
 
 /// Voxels between exact evaluations of the curtain term along a column.
 const STRIDE: usize = 8;
@@ -68,6 +69,7 @@ fn classify_by(
     if samples.last() != Some(&(nz - 1)) {
         samples.push(nz - 1);
     }
+    let zero_bounds = vec![0.0; samples.len()];
     inside
         .par_chunks_mut(nz * COLUMNS_TOGETHER)
         .enumerate()
@@ -95,7 +97,7 @@ fn classify_by(
             let terms = curtain.terms(&unsettled.iter().flat_map(points).collect::<Vec<_>>());
             for (&k, terms) in unsettled.iter().zip(terms.chunks_exact(samples.len())) {
                 let column = &mut columns[k * nz..(k + 1) * nz];
-                let left = settle_column(column, &counts[k], &samples, terms, &vec![0.0; samples.len()]);
+                let left = settle_column(column, &counts[k], &samples, terms, &zero_bounds);
                 exact.extend(
                     left.expect("exact terms settle every decision")
                         .into_iter()
@@ -203,7 +205,8 @@ pub struct Curtain {
     vertices: Vec<DVec3>,
     /// (start, end, weight): an edge taken `weight` times, backwards where negative.
     edges: Vec<(usize, usize, i32)>,
-    far_field: FarField,
+    /// Built by the first [`Curtain::bounded_terms`]: the winding field never asks.
+    far_field: OnceLock<FarField>,
 }
 
 impl Curtain {
@@ -216,11 +219,11 @@ impl Curtain {
                 vertices.len() - 1
             })
         };
-        let edges: Vec<_> = boundary.iter().map(|e| (index(e.a), index(e.b), e.weight)).collect();
+        let edges = boundary.iter().map(|e| (index(e.a), index(e.b), e.weight)).collect();
         Curtain {
-            far_field: FarField::new(&vertices, &edges),
             vertices,
             edges,
+            far_field: OnceLock::new(),
         }
     }
 
@@ -257,6 +260,9 @@ impl Curtain {
     /// of edges far from all the points count as dipoles ([`far_field`]), the rest exactly.
     /// The bound takes in a billionth for rounding, far more than the exact sum's own.
     pub fn bounded_terms(&self, points: &[DVec3]) -> (Vec<f64>, Vec<f64>) {
+        let far_field = self
+            .far_field
+            .get_or_init(|| FarField::new(&self.vertices, &self.edges));
         let (mut terms, mut bounds) = (vec![0.0; points.len()], vec![ROUNDING; points.len()]);
         // In groups of points at about one height: the nearer the points lie to each other,
         // the more loops are far from them all.
@@ -264,17 +270,13 @@ impl Curtain {
         order.sort_by(|&a, &b| points[a].z.total_cmp(&points[b].z));
         for group in order.chunks(BOUNDED_GROUP) {
             let points: Vec<DVec3> = group.iter().map(|&i| points[i]).collect();
-            let (lo, hi) = points
-                .iter()
-                .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
-                    (lo.min(p), hi.max(p))
-                });
-            let split = self.far_field.split(lo, hi);
+            let (lo, hi) = point_bounds(points.iter().copied());
+            let split = far_field.split(lo, hi);
             let mut angles = Angles::new(&points);
             add_edges_fast(&split.near_vertices, &split.near_edges, &mut angles);
             let mut near: Vec<f64> = angles.terms().collect();
             let mut far = vec![ROUNDING; points.len()];
-            self.far_field.add_far(&split, &points, &mut near, &mut far);
+            far_field.add_far(&split, &points, &mut near, &mut far);
             for ((&i, term), bound) in group.iter().zip(near).zip(far) {
                 (terms[i], bounds[i]) = (term, bound);
             }

@@ -11,6 +11,8 @@
 //! (x − p) / |x − p|³ moves by at most 2 / (r − R)³ per unit of x. Loops near one another share
 //! one dipole in a tree.
 
+use crate::mesh::point_bounds;
+use crate::mesh::topology::linked_components;
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
 
@@ -64,20 +66,10 @@ const FAR: f64 = 8.0;
 impl FarField {
     /// The loops of the curtain's `edges` (ends indexing `vertices`, with weights).
     pub(super) fn new(vertices: &[DVec3], edges: &[(usize, usize, i32)]) -> FarField {
-        // The loops: the connected runs of edges, through a union of their ends.
-        let mut parent: Vec<usize> = (0..vertices.len()).collect();
-        fn root(parent: &mut [usize], mut v: usize) -> usize {
-            while parent[v] != v {
-                parent[v] = parent[parent[v]];
-                v = parent[v];
-            }
-            v
-        }
-        for &(a, b, _) in edges {
-            let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
-            parent[ra.max(rb)] = ra.min(rb);
-        }
-        let mut by_loop: Vec<(usize, usize)> = (0..edges.len()).map(|e| (root(&mut parent, edges[e].0), e)).collect();
+        // The loops: the connected runs of edges.
+        let ends = edges.iter().map(|&(a, b, _)| (a as u32, b as u32));
+        let component = linked_components(vertices.len(), ends);
+        let mut by_loop: Vec<(u32, usize)> = (0..edges.len()).map(|e| (component[edges[e].0], e)).collect();
         by_loop.sort_unstable();
         // Each loop's vertices, in the order its edges first reach them.
         let mut slot = vec![usize::MAX; vertices.len()];
@@ -123,8 +115,7 @@ impl FarField {
     ) -> Node {
         let own = &vertices[own_vertices.clone()];
         let centre = own.iter().sum::<DVec3>() / own.len() as f64;
-        let (mut moment, mut area, mut radius) = (DVec3::ZERO, 0.0, 0.0f64);
-        let (mut lo, mut hi) = (DVec2::INFINITY, DVec2::NEG_INFINITY);
+        let (mut moment, mut area) = (DVec3::ZERO, 0.0);
         // Closed where every vertex has as many edges in as out, weights counted.
         let mut balance = vec![0i64; own.len()];
         for &(a, b, weight) in &edges[own_edges.clone()] {
@@ -134,17 +125,15 @@ impl FarField {
             balance[a - own_vertices.start] -= i64::from(weight);
             balance[b - own_vertices.start] += i64::from(weight);
         }
-        for &p in own {
-            radius = radius.max((p - centre).length());
-            (lo, hi) = (lo.min(p.truncate()), hi.max(p.truncate()));
-        }
+        let radius = own.iter().map(|&p| (p - centre).length()).fold(0.0, f64::max);
+        let (lo, hi) = point_bounds(own.iter().copied());
         Node {
             centre,
             moment,
             area,
             radius,
-            lo,
-            hi,
+            lo: lo.truncate(),
+            hi: hi.truncate(),
             closed: balance.iter().all(|&b| b == 0),
             children: Children::Loop {
                 vertices: own_vertices,
@@ -161,11 +150,7 @@ impl FarField {
             return nodes.len() - 1;
         }
         let centre = |l: usize| leaves[l].as_ref().expect("not placed yet").centre;
-        let (lo, hi) = loops
-            .iter()
-            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &l| {
-                (lo.min(centre(l)), hi.max(centre(l)))
-            });
+        let (lo, hi) = point_bounds(loops.iter().map(|&l| centre(l)));
         let axis = (hi - lo).max_position();
         let half = loops.len() / 2;
         loops.select_nth_unstable_by(half, |&a, &b| centre(a)[axis].total_cmp(&centre(b)[axis]));
@@ -215,8 +200,8 @@ impl FarField {
                 ref edges,
             } => {
                 // Vertices numbered from where they land in the near list.
-                let shift = split.near_vertices.len() as isize - vertices.start as isize;
-                let moved = |v: usize| v.wrapping_add_signed(shift);
+                let first = split.near_vertices.len();
+                let moved = |v: usize| v - vertices.start + first;
                 split.near_vertices.extend_from_slice(&self.vertices[vertices.clone()]);
                 let near = self.edges[edges.clone()]
                     .iter()

@@ -203,19 +203,29 @@ fn fill(
         let (first, last) = (ceil_index(a), floor_index(b));
         (first <= last).then_some((first, last))
     };
-    let (Some((x0, x1)), Some((y0, y1))) = (pixels(lo.x, hi.x, within.x), pixels(lo.y, hi.y, within.y)) else {
+    let (Some(x), Some(y)) = (pixels(lo.x, hi.x, within.x), pixels(lo.y, hi.y, within.y)) else {
         return;
     };
+    fill_span(view, p, coverage, along, Span { x, y }, visit);
+}
+
+/// [`fill`] once the pixels that the triangle's samples may cover, `span`, are found.
+#[inline(always)]
+fn fill_span(
+    view: &View,
+    p: [DVec3; 3],
+    coverage: Coverage,
+    along: impl Fn(f64) -> f64,
+    span: Span,
+    visit: &mut impl Pixels,
+) {
+    let q = p.map(|v| v.truncate());
     let area = cross(q[1] - q[0], q[2] - q[0]);
     if area == 0.0 || !area.is_finite() {
         return;
     }
     // Only for a triangle with pixels to draw: a perspective view's reciprocals divide.
     let p = p.map(|v| DVec3::new(v.x, v.y, along(v.z)));
-    let span = Span {
-        x: (x0, x1),
-        y: (y0, y1),
-    };
     match coverage {
         Coverage::Whole => fill_whole(view, p, area, span, along, visit),
         Coverage::Centres => fill_centres(view, p, area, [false; 3], span, along, visit),
@@ -275,6 +285,7 @@ fn fill_whole(view: &View, p: [DVec3; 3], area: f64, span: Span, depth: impl Fn(
 
 /// [`Coverage::Centres`] and [`Coverage::Eroded`]: the pixels whose centres the triangle
 /// covers, and whose squares lie wholly inside the edges flagged in `eroded`.
+#[inline(always)]
 fn fill_centres<V: Pixels>(
     view: &View,
     p: [DVec3; 3],
@@ -327,6 +338,7 @@ struct Rows {
 impl Rows {
     /// Visits the pixels whose centres pass `holds` (edge k, its function there) for every edge,
     /// at `depth` of the corners' values weighed there.
+    #[inline(always)]
     fn fill<V: Pixels>(
         &self,
         view: &View,
@@ -517,7 +529,7 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
 /// Calls `visit(pixel index, depth)` for every pixel centre each triangle of `mesh` covers.
 /// Each vertex is projected once.
 pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
-    fill_mesh(view, mesh, |_| Coverage::Centres, &mut EachPixel(visit));
+    fill_mesh(view, mesh, |_| [false; 3], &mut EachPixel(visit));
 }
 
 /// Draws `mesh` over `depth`, a depth image of `view`, where triangle t's edge k (from corner
@@ -525,17 +537,24 @@ pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
 /// where a crack narrower than a pixel runs along that edge, the pixel sees what lies behind.
 pub fn draw_eroded(view: &View, mesh: &Mesh, eroded: &[[bool; 3]], depth: &mut [f32]) {
     let mut pixels = EachPixel(|i: usize, d: f64| depth[i] = depth[i].min(d as f32));
-    fill_mesh(view, mesh, |t| Coverage::Eroded(eroded[t]), &mut pixels);
+    fill_mesh(view, mesh, |t| eroded[t], &mut pixels);
 }
 
-/// Triangle t of `mesh` by `coverage(t)` into any [`Pixels`], every vertex projected once.
-fn fill_mesh(view: &View, mesh: &Mesh, coverage: impl Fn(usize) -> Coverage, visit: &mut impl Pixels) {
+/// The pixel centres triangle t of `mesh` covers, less those whose squares the edges flagged
+/// in `eroded(t)` cross ([`Coverage::Eroded`]), into any [`Pixels`], every vertex projected once.
+fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visit: &mut impl Pixels) {
     let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
-    let all = Span::all(view);
     match view.lens {
         Lens::Orthographic { .. } => {
+            // Most triangles of a detailed mesh cover no pixel centre: their corners' places
+            // among the centres, found once a vertex, leave them out by integer compares.
+            let places: Vec<CentrePlaces> = projected.iter().map(|q| CentrePlaces::of(q, view.pixels)).collect();
             for (t, tri) in mesh.triangles.iter().enumerate() {
-                fill(view, tri.map(|i| projected[i as usize]), coverage(t), |d| d, all, visit);
+                let Some(span) = CentrePlaces::span(tri.map(|i| places[i as usize]), view.pixels) else {
+                    continue;
+                };
+                let q = tri.map(|i| projected[i as usize]);
+                fill_span(view, q, Coverage::Eroded(eroded(t)), |d| d, span, visit);
             }
         }
         Lens::Perspective { .. } => {
@@ -545,12 +564,60 @@ fn fill_mesh(view: &View, mesh: &Mesh, coverage: impl Fn(usize) -> Coverage, vis
                     view,
                     &corners,
                     tri.map(|i| projected[i as usize]),
-                    coverage(t),
-                    all,
+                    Coverage::Eroded(eroded(t)),
+                    Span::all(view),
                     visit,
                 );
             }
         }
+    }
+}
+
+/// A projected point's place among the pixel centres (i + 0.5) along x and along y: the
+/// least index whose centre lies at or past it, and the greatest whose centre lies at or
+/// before it. Both are clamped to [-1, n] for n pixels, which leaves every answer about the
+/// pixels 0..n as it was.
+#[derive(Clone, Copy)]
+struct CentrePlaces {
+    after: [i32; 2],
+    before: [i32; 2],
+}
+
+impl CentrePlaces {
+    #[inline(always)]
+    fn of(q: &DVec3, n: usize) -> CentrePlaces {
+        let places = |c: f64| {
+            let v = (c - 0.5).clamp(-1.0, index_to_f64(n));
+            let toward_zero = v as i32;
+            let t = f64::from(toward_zero);
+            (toward_zero + i32::from(t < v), toward_zero - i32::from(t > v))
+        };
+        let ((ax, bx), (ay, by)) = (places(q.x), places(q.y));
+        CentrePlaces {
+            after: [ax, ay],
+            before: [bx, by],
+        }
+    }
+
+    /// The pixels whose centres a triangle with these corners' places may cover, as [`fill`]
+    /// finds them from its bounds: none where no centre lies within them.
+    #[inline(always)]
+    fn span(corners: [CentrePlaces; 3], n: usize) -> Option<Span> {
+        let range = |k: usize| {
+            let first = corners[0].after[k]
+                .min(corners[1].after[k])
+                .min(corners[2].after[k])
+                .max(0);
+            let last = corners[0].before[k]
+                .max(corners[1].before[k])
+                .max(corners[2].before[k])
+                .min(n as i32 - 1);
+            (first <= last).then_some((first as usize, last as usize))
+        };
+        Some(Span {
+            x: range(0)?,
+            y: range(1)?,
+        })
     }
 }
 
@@ -715,7 +782,7 @@ pub fn draw_coverage(view: &View, mesh: &Mesh, mask: &mut [u64]) -> std::ops::Ra
         first: usize::MAX,
         end: 0,
     };
-    fill_mesh(view, mesh, |_| Coverage::Centres, &mut bits);
+    fill_mesh(view, mesh, |_| [false; 3], &mut bits);
     bits.first.min(bits.end)..bits.end
 }
 
@@ -868,6 +935,31 @@ mod tests {
             drawn += whole.len();
         }
         assert!(drawn > 10_000 && crossing > 100, "{drawn} pixels, {crossing} crossing");
+    }
+
+    #[test]
+    fn a_mesh_drawn_around_gives_what_its_triangles_give_one_by_one() {
+        // Seen along z, 64 pixels frame the unit sphere: pixels 1/32 wide, their centres at odd
+        // multiples of 1/64 less 1. Half the corners lie on a multiple of 1/64, so on a pixel's
+        // centre or edge, where the corners' places among the centres must round as the
+        // triangle's bounds do; some triangles reach far off the view.
+        let mut mesh = random_triangles(13, 3000, [0.02, 0.3, 6.0]);
+        for p in mesh.positions.iter_mut().step_by(2) {
+            *p = (*p * 64.0).round() / 64.0;
+        }
+        let aslant = DVec3::new(0.3, 0.8, -0.5).normalize();
+        let mut drawn = 0;
+        for view in [DVec3::Z, aslant].map(|d| View::new(d, DVec3::ZERO, 1.0, 64)) {
+            let mut whole = Vec::new();
+            rasterize_mesh(&view, &mesh, |i, d| whole.push((i, d.to_bits())));
+            let mut one_by_one = Vec::new();
+            for tri in mesh.triangles_f64() {
+                rasterize(&view, &tri, |i, d| one_by_one.push((i, d.to_bits())));
+            }
+            assert_eq!(whole, one_by_one);
+            drawn += whole.len();
+        }
+        assert!(drawn > 20_000, "{drawn} pixels");
     }
 
     #[test]

@@ -262,8 +262,11 @@ impl OpenViews {
         let bricks: Vec<[usize; 3]> = starts(0)
             .flat_map(|x| starts(1).flat_map(move |y| starts(2).map(move |z| [x, y, z])))
             .collect();
+        // A brick a task: the bricks that few views hide cost far more than the rest, and rayon
+        // would otherwise leave a run of them to one thread.
         let seen: Vec<usize> = bricks
             .par_iter()
+            .with_max_len(1)
             .flat_map_iter(|&first| {
                 let span = |k: usize| first[k]..(first[k] + CORNER_BRICK).min(dims[k]);
                 let run: Vec<[usize; 3]> = span(0)

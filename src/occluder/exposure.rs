@@ -58,6 +58,8 @@ const OPEN_WINDING: f64 = 0.3;
 const MAX_EYES: usize = 24;
 /// Grid corners along each side of a brick tested together, view by view.
 const CORNER_BRICK: usize = 8;
+/// Views whose depths the bricks go through together: a few, whose depths stay in cache.
+const VIEWS_TOGETHER: usize = 8;
 /// Most cells along a side of a panel cut down to its hidden part.
 const MAX_PART_CELLS: usize = 64;
 
@@ -253,45 +255,32 @@ impl OpenViews {
         Ok(exposed.len())
     }
 
-    /// Of the `needed` grid corners (z fastest), those some view sees. The corners go a brick
-    /// at a time through the views one view at a time, so that each view's depths stay in
-    /// cache, and a view with the whole brick behind its depths skips it.
+    /// Of the `needed` grid corners (z fastest), those some view sees. The corners go in bricks
+    /// through a few views at a time, whose depths stay in cache (all views' together are far
+    /// larger than it); a view with the whole brick behind its depths skips it, and a brick
+    /// whose corners are all seen leaves the rest of the views.
     fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
-        let dims = grid.dims.map(|d| d + 1);
-        let starts = |k: usize| (0..dims[k]).step_by(CORNER_BRICK);
-        let bricks: Vec<[usize; 3]> = starts(0)
-            .flat_map(|x| starts(1).flat_map(move |y| starts(2).map(move |z| [x, y, z])))
-            .collect();
-        // A brick a task: the bricks that few views hide cost far more than the rest, and rayon
-        // would otherwise leave a run of them to one thread.
-        let seen: Vec<usize> = bricks
-            .par_iter()
-            .with_max_len(1)
-            .flat_map_iter(|&first| {
-                let span = |k: usize| first[k]..(first[k] + CORNER_BRICK).min(dims[k]);
-                let run: Vec<[usize; 3]> = span(0)
-                    .flat_map(|x| span(1).flat_map(move |y| span(2).map(move |z| [x, y, z])))
-                    .filter(|&c| needed[corner_index(grid, c)])
-                    .collect();
-                let points: Vec<DVec3> = run
-                    .iter()
-                    .map(|c| grid.to_world(DVec3::from_array(c.map(|i| i as f64))))
-                    .collect();
-                let (lo, hi) = point_bounds(points.iter().copied());
-                let mut seen = vec![false; run.len()];
-                for v in (0..self.views.len()).filter(|&v| !points.is_empty() && !self.hides_box(v, lo, hi)) {
-                    for (seen, &p) in seen.iter_mut().zip(&points) {
-                        *seen = *seen || self.sees(v, p);
+        let bricks = CornerBricks::new(grid, needed);
+        let mut seen = vec![false; bricks.corners.len()];
+        let views: Vec<usize> = (0..self.views.len()).collect();
+        for block in views.chunks(VIEWS_TOGETHER) {
+            bricks
+                .split(&mut seen)
+                .into_par_iter()
+                .with_max_len(1)
+                .filter(|(_, seen)| seen.iter().any(|seen| !seen))
+                .for_each(|(b, seen)| {
+                    let (lo, hi) = bricks.bounds[b];
+                    let points = &bricks.points[bricks.starts[b]..bricks.starts[b + 1]];
+                    for &v in block.iter().filter(|&&v| !self.hides_box(v, lo, hi)) {
+                        for (seen, &p) in seen.iter_mut().zip(points) {
+                            *seen = *seen || self.sees(v, p);
+                        }
                     }
-                }
-                run.into_iter()
-                    .zip(seen)
-                    .filter(|(_, seen)| *seen)
-                    .map(|(c, _)| corner_index(grid, c))
-            })
-            .collect();
+                });
+        }
         let mut all = vec![false; needed.len()];
-        for c in seen {
+        for (&c, _) in bricks.corners.iter().zip(&seen).filter(|(_, seen)| **seen) {
             all[c] = true;
         }
         all
@@ -600,6 +589,67 @@ fn may_hide_counted(mesh: &Mesh, lowest: &[f32], sphere: (DVec3, f64), view: &Vi
 /// The index of grid corner [x, y, z] (z fastest) among the grid's corners.
 fn corner_index(grid: &Grid, [x, y, z]: [usize; 3]) -> usize {
     (x * (grid.dims[1] + 1) + y) * (grid.dims[2] + 1) + z
+}
+
+/// The needed grid corners in bricks of `CORNER_BRICK` along each side: brick b's are
+/// `corners[starts[b]..starts[b + 1]]`, at `points` in the world, within `bounds[b]`. Bricks
+/// with no needed corner are left out.
+struct CornerBricks {
+    starts: Vec<usize>,
+    corners: Vec<usize>,
+    points: Vec<DVec3>,
+    bounds: Vec<(DVec3, DVec3)>,
+}
+
+impl CornerBricks {
+    fn new(grid: &Grid, needed: &[bool]) -> CornerBricks {
+        let dims = grid.dims.map(|d| d + 1);
+        let starts = |k: usize| (0..dims[k]).step_by(CORNER_BRICK);
+        let firsts: Vec<[usize; 3]> = starts(0)
+            .flat_map(|x| starts(1).flat_map(move |y| starts(2).map(move |z| [x, y, z])))
+            .collect();
+        let found: Vec<(Vec<usize>, Vec<DVec3>)> = firsts
+            .par_iter()
+            .map(|&first| {
+                let span = |k: usize| first[k]..(first[k] + CORNER_BRICK).min(dims[k]);
+                let corners: Vec<[usize; 3]> = span(0)
+                    .flat_map(|x| span(1).flat_map(move |y| span(2).map(move |z| [x, y, z])))
+                    .filter(|&c| needed[corner_index(grid, c)])
+                    .collect();
+                let points: Vec<DVec3> = corners
+                    .iter()
+                    .map(|c| grid.to_world(DVec3::from_array(c.map(|i| i as f64))))
+                    .collect();
+                let indices: Vec<usize> = corners.iter().map(|&c| corner_index(grid, c)).collect();
+                (indices, points)
+            })
+            .filter(|(corners, _)| !corners.is_empty())
+            .collect();
+        let mut bricks = CornerBricks {
+            starts: vec![0],
+            corners: Vec::new(),
+            points: Vec::new(),
+            bounds: Vec::new(),
+        };
+        for (corners, points) in found {
+            bricks.bounds.push(point_bounds(points.iter().copied()));
+            bricks.corners.extend(corners);
+            bricks.points.extend(points);
+            bricks.starts.push(bricks.corners.len());
+        }
+        bricks
+    }
+
+    /// `flags`, a flag per corner, as each brick's, with the brick's index.
+    fn split<'a>(&self, mut flags: &'a mut [bool]) -> Vec<(usize, &'a mut [bool])> {
+        let mut split = Vec::with_capacity(self.bounds.len());
+        for (b, run) in self.starts.windows(2).enumerate() {
+            let (brick, rest) = flags.split_at_mut(run[1] - run[0]);
+            split.push((b, brick));
+            flags = rest;
+        }
+        split
+    }
 }
 
 /// Depth image memory a finished cook left for the next in this process: pages faulted in and

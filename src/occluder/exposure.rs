@@ -702,20 +702,23 @@ fn farthest_per_tile(depth: &[f32], n: usize, out: &mut [f32]) {
 /// `out`: the farthest over each row's neighbours, then over those of the rows around. `n` is at
 /// least 2.
 fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
-    let mut across = vec![0f32; n * n];
-    for (row, far) in depth.chunks_exact(n).zip(across.chunks_exact_mut(n)) {
+    for (row, far) in depth.chunks_exact(n).zip(out.chunks_exact_mut(n)) {
         far[0] = row[0].max(row[1]).max(0.0);
         for (x, far) in far[1..n - 1].iter_mut().enumerate() {
             *far = row[x].max(row[x + 1]).max(row[x + 2]).max(0.0);
         }
         far[n - 1] = row[n - 2].max(row[n - 1]).max(0.0);
     }
-    let rows: Vec<&[f32]> = across.chunks_exact(n).collect();
-    for (y, out) in out.chunks_exact_mut(n).enumerate() {
-        let (above, below) = (rows[y.saturating_sub(1)], rows[(y + 1).min(n - 1)]);
-        for (((out, &a), &b), &c) in out.iter_mut().zip(above).zip(rows[y]).zip(below) {
-            *out = a.max(b).max(c);
+    // Over the rows around, in place, with the row above and this one as they were kept aside:
+    // no image-sized buffer, whose pages a fresh allocation would fault in view after view.
+    let (mut above, mut this) = (out[..n].to_vec(), vec![0f32; n]);
+    for y in 0..n {
+        this.copy_from_slice(&out[y * n..(y + 1) * n]);
+        let below = (y + 1).min(n - 1) * n;
+        for x in 0..n {
+            out[y * n + x] = above[x].max(this[x]).max(out[below + x]);
         }
+        std::mem::swap(&mut above, &mut this);
     }
 }
 

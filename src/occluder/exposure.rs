@@ -262,17 +262,19 @@ impl OpenViews {
     fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
         let bricks = CornerBricks::new(grid, needed);
         let mut seen = vec![false; bricks.corners.len()];
-        let views: Vec<usize> = (0..self.views.len()).collect();
-        for block in views.chunks(VIEWS_TOGETHER) {
+        let count = self.views.len();
+        for first in (0..count).step_by(VIEWS_TOGETHER) {
+            let block = first..(first + VIEWS_TOGETHER).min(count);
             bricks
                 .split(&mut seen)
                 .into_par_iter()
+                .enumerate()
                 .with_max_len(1)
                 .filter(|(_, seen)| seen.iter().any(|seen| !seen))
                 .for_each(|(b, seen)| {
                     let (lo, hi) = bricks.bounds[b];
                     let points = &bricks.points[bricks.starts[b]..bricks.starts[b + 1]];
-                    for &v in block.iter().filter(|&&v| !self.hides_box(v, lo, hi)) {
+                    for v in block.clone().filter(|&v| !self.hides_box(v, lo, hi)) {
                         for (seen, &p) in seen.iter_mut().zip(points) {
                             *seen = *seen || self.sees(v, p);
                         }
@@ -608,20 +610,17 @@ impl CornerBricks {
         let firsts: Vec<[usize; 3]> = starts(0)
             .flat_map(|x| starts(1).flat_map(move |y| starts(2).map(move |z| [x, y, z])))
             .collect();
-        let found: Vec<(Vec<usize>, Vec<DVec3>)> = firsts
+        let found: Vec<_> = firsts
             .par_iter()
-            .map(|&first| {
+            .map(|&first| -> (Vec<usize>, Vec<DVec3>) {
                 let span = |k: usize| first[k]..(first[k] + CORNER_BRICK).min(dims[k]);
-                let corners: Vec<[usize; 3]> = span(0)
+                span(0)
                     .flat_map(|x| span(1).flat_map(move |y| span(2).map(move |z| [x, y, z])))
-                    .filter(|&c| needed[corner_index(grid, c)])
-                    .collect();
-                let points: Vec<DVec3> = corners
-                    .iter()
-                    .map(|c| grid.to_world(DVec3::from_array(c.map(|i| i as f64))))
-                    .collect();
-                let indices: Vec<usize> = corners.iter().map(|&c| corner_index(grid, c)).collect();
-                (indices, points)
+                    .filter_map(|c| {
+                        let index = corner_index(grid, c);
+                        needed[index].then(|| (index, grid.to_world(DVec3::from_array(c.map(|i| i as f64)))))
+                    })
+                    .unzip()
             })
             .filter(|(corners, _)| !corners.is_empty())
             .collect();
@@ -640,12 +639,12 @@ impl CornerBricks {
         bricks
     }
 
-    /// `flags`, a flag per corner, as each brick's, with the brick's index.
-    fn split<'a>(&self, mut flags: &'a mut [bool]) -> Vec<(usize, &'a mut [bool])> {
+    /// `flags`, a flag per corner, as each brick's, brick after brick.
+    fn split<'a>(&self, mut flags: &'a mut [bool]) -> Vec<&'a mut [bool]> {
         let mut split = Vec::with_capacity(self.bounds.len());
-        for (b, run) in self.starts.windows(2).enumerate() {
+        for run in self.starts.windows(2) {
             let (brick, rest) = flags.split_at_mut(run[1] - run[0]);
-            split.push((b, brick));
+            split.push(brick);
             flags = rest;
         }
         split

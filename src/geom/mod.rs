@@ -66,6 +66,23 @@ pub fn with_popcnt<R>(count: impl FnOnce() -> R) -> R {
     count()
 }
 
+/// `work()`, compiled with AVX2's wider vector lanes where the CPU has them: for loops of
+/// float operations that the caller inlines into it, which then give the same values to the bit
+/// (Rust fuses no multiply with an add).
+#[inline(always)]
+pub fn with_avx2<R>(work: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        #[target_feature(enable = "avx2")]
+        fn run<R>(work: impl FnOnce() -> R) -> R {
+            work()
+        }
+        // SAFETY: the CPU has AVX2.
+        return unsafe { run(work) };
+    }
+    work()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -26,6 +26,7 @@ use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
+use crate::geom::with_avx2;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
@@ -701,24 +702,31 @@ fn farthest_per_tile(depth: &[f32], n: usize, out: &mut [f32]) {
 /// `out`: the farthest over each row's neighbours, then over those of the rows around. `n` is at
 /// least 2.
 fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
-    for (row, far) in depth.chunks_exact(n).zip(out.chunks_exact_mut(n)) {
-        far[0] = row[0].max(row[1]).max(0.0);
-        for (x, far) in far[1..n - 1].iter_mut().enumerate() {
-            *far = row[x].max(row[x + 1]).max(row[x + 2]).max(0.0);
+    // Slices zipped, in AVX2's wider lanes where the CPU has them: the same maxima.
+    with_avx2(|| {
+        for (row, far) in depth.chunks_exact(n).zip(out.chunks_exact_mut(n)) {
+            far[0] = row[0].max(row[1]).max(0.0);
+            let around = row.iter().zip(&row[1..]).zip(&row[2..]);
+            for (far, ((left, this), right)) in far[1..n - 1].iter_mut().zip(around) {
+                *far = left.max(*this).max(*right).max(0.0);
+            }
+            far[n - 1] = row[n - 2].max(row[n - 1]).max(0.0);
         }
-        far[n - 1] = row[n - 2].max(row[n - 1]).max(0.0);
-    }
-    // Over the rows around, in place, with the row above and this one as they were kept aside:
-    // no image-sized buffer, whose pages a fresh allocation would fault in view after view.
-    let (mut above, mut this) = (out[..n].to_vec(), vec![0f32; n]);
-    for y in 0..n {
-        this.copy_from_slice(&out[y * n..(y + 1) * n]);
-        let below = (y + 1).min(n - 1) * n;
-        for x in 0..n {
-            out[y * n + x] = above[x].max(this[x]).max(out[below + x]);
+        // Over the rows around, in place, with the row above and this one as they were kept
+        // aside: no image-sized buffer, whose pages a fresh allocation would fault in view
+        // after view.
+        let (mut above, mut this) = (out[..n].to_vec(), vec![0f32; n]);
+        for y in 0..n {
+            this.copy_from_slice(&out[y * n..(y + 1) * n]);
+            let (upto, rest) = out.split_at_mut((y + 1) * n);
+            let below = if y + 1 < n { &rest[..n] } else { &this[..] };
+            let around = above.iter().zip(&this).zip(below);
+            for (far, ((above, this), below)) in upto[y * n..].iter_mut().zip(around) {
+                *far = above.max(*this).max(*below);
+            }
+            std::mem::swap(&mut above, &mut this);
         }
-        std::mem::swap(&mut above, &mut this);
-    }
+    })
 }
 
 /// A mesh's triangles along a crack, which the views draw eroded, apart from the rest.

@@ -76,7 +76,7 @@ trait Pixels {
     fn run(&mut self, row: usize, xs: std::ops::RangeInclusive<usize>);
     /// For a sink that keeps each pixel's nearest depth, its image, into which an orthographic
     /// view's triangles with no edge flagged are drawn a few pixels at a time
-    /// ([`fill_nearest`]).
+    /// ([`Rows::fill_nearest`]).
     #[inline(always)]
     fn nearest(&mut self) -> Option<&mut [f32]> {
         None
@@ -330,11 +330,16 @@ fn fill_centres<V: Pixels>(
     // has the area's sign, so only the pixels drawn pay for the divisions. The edges of a
     // clockwise triangle are negated, and its area with them: negation is exact, so every
     // function is negated to the bit and holds where it is at least 0, and the weights stay.
-    let edges = turned_edges(q, area);
+    let sign = area.signum();
+    let edges = [(q[2] - q[1], q[1]), (q[0] - q[2], q[2]), (q[1] - q[0], q[0])].map(|(e, o)| (e * sign, o));
     let area = area.abs();
     let rows = Rows { edges, area, span };
     if eroded == [false; 3] {
-        rows.fill(view, &p, |_, f| f >= 0.0, depth, visit);
+        let orthographic = matches!(view.lens, Lens::Orthographic { .. });
+        match visit.nearest() {
+            Some(image) if orthographic && view.pixels >= LANES => rows.fill_nearest(&p, view.pixels, image),
+            _ => rows.fill(view, &p, |_, f| f >= 0.0, depth, visit),
+        }
         return;
     }
     // How far inside each edge a pixel centre must be, as a weight, for the pixel's square to be:
@@ -352,14 +357,6 @@ fn fill_centres<V: Pixels>(
         inset => f / area >= inset,
     };
     rows.fill(view, &p, holds, depth, visit);
-}
-
-/// The edges of the screen triangle `q` of signed `area`, each with a corner on it, as
-/// [`fill_centres`] turns them.
-#[inline(always)]
-fn turned_edges(q: [DVec2; 3], area: f64) -> [(DVec2, DVec2); 3] {
-    let sign = area.signum();
-    [(q[2] - q[1], q[1]), (q[0] - q[2], q[2]), (q[1] - q[0], q[0])].map(|(e, o)| (e * sign, o))
 }
 
 /// A triangle's edges as [`fill_centres`] turns them, each with a corner on it, its area, and
@@ -387,11 +384,8 @@ impl Rows {
         // multiplications a pixel instead of three divisions.
         let per_area = 1.0 / area;
         let depth_at = |f: [f64; 3]| depth(interpolate(p, f.map(|f| f * per_area)));
-        // The edges' functions at the centres of row y are `function(k, x)` of its `rows`.
-        let rows = |y: usize| edges.map(|(e, o)| e.x * ((index_to_f64(y) + 0.5) - o.y));
-        let in_row = |rows: [f64; 3]| {
-            move |k: usize, x: usize| rows[k] - edges[k].0.y * ((index_to_f64(x) + 0.5) - edges[k].1.x)
-        };
+        let rows = |y: usize| self.row(y);
+        let in_row = |row: [f64; 3]| move |k: usize, x: usize| self.at(&row, k, x);
         let (x0, x1) = span.x;
         let (y0, y1) = span.y;
         if x1 - x0 <= 1 && y1 - y0 <= 1 {
@@ -432,8 +426,7 @@ impl Rows {
         // a sink of runs or a long row, else found as the pixels are drawn (most runs of a
         // detailed mesh are a pixel or two long). Searches start at the candidates' ends
         // ([`first_where_near`]).
-        let rising = edges.map(|(e, _)| e.y * area < 0.0);
-        let slopes = edges.map(|(e, _)| 1.0 / e.y);
+        let (rising, slopes) = self.crossings();
         for y in span.y.0..=span.y.1 {
             let row = rows(y);
             let Some((lo, hi)) = row_span(&edges, row, rising, slopes, span.x) else {
@@ -468,7 +461,78 @@ impl Rows {
             }
         }
     }
+
+    /// The edges' functions at the centres of row y, less their terms in x ([`Rows::at`]).
+    #[inline(always)]
+    fn row(&self, y: usize) -> [f64; 3] {
+        self.edges.map(|(e, o)| e.x * ((index_to_f64(y) + 0.5) - o.y))
+    }
+
+    /// Edge k's function at the centre of pixel x of the row whose [`Rows::row`] is `row`.
+    #[inline(always)]
+    fn at(&self, row: &[f64; 3], k: usize, x: usize) -> f64 {
+        let (e, o) = self.edges[k];
+        row[k] - e.y * ((index_to_f64(x) + 0.5) - o.x)
+    }
+
+    /// Per edge, whether its function rises towards the triangle's side along a row, and
+    /// 1 / e.y, which [`row_span`] takes.
+    #[inline(always)]
+    fn crossings(&self) -> ([bool; 3], [f64; 3]) {
+        (
+            self.edges.map(|(e, _)| e.y * self.area < 0.0),
+            self.edges.map(|(e, _)| 1.0 / e.y),
+        )
+    }
+
+    /// [`Rows::fill`] with no edge flagged, of an orthographic view, into `depth`, an n × n image
+    /// of nearest depths (n at least `LANES`): the same operations, so the same pixels and
+    /// depths to the bit. A row's pixels are tested `LANES` at a time, all the same way, those
+    /// outside the row's candidates left as they were: no branch on each pixel's test, which no
+    /// predictor guesses well on small triangles.
+    #[inline(always)]
+    fn fill_nearest(&self, p: &[DVec3; 3], n: usize, depth: &mut [f32]) {
+        let per_area = 1.0 / self.area;
+        let (rising, slopes) = self.crossings();
+        let (x0, x1) = self.span.x;
+        for y in self.span.y.0..=self.span.y.1 {
+            let row = self.row(y);
+            // A narrow span is tested whole; a wide one only where the edges cross the row.
+            let (lo, hi) = if x1 - x0 < 2 * LANES {
+                (x0, x1)
+            } else {
+                match row_span(&self.edges, row, rising, slopes, self.span.x) {
+                    Some(candidates) => candidates,
+                    None => continue,
+                }
+            };
+            let mut from = lo;
+            while from <= hi {
+                // At the end of the image's row, its last lanes: those before `lo` are left as
+                // they are.
+                let start = from.min(n - LANES);
+                let pixels: &mut [f32; LANES] = (&mut depth[y * n + start..][..LANES]).try_into().unwrap();
+                // `Rows::at` of each lane, the centres found once for the three edges.
+                let centres: [f64; LANES] = std::array::from_fn(|l| index_to_f64(start + l) + 0.5);
+                let f: [[f64; LANES]; 3] = std::array::from_fn(|k| {
+                    let (e, o) = self.edges[k];
+                    centres.map(|c| row[k] - e.y * (c - o.x))
+                });
+                for (l, pixel) in pixels.iter_mut().enumerate() {
+                    let x = start + l;
+                    let drawn = (x >= lo) & (x <= hi) & (f[0][l] >= 0.0) & (f[1][l] >= 0.0) & (f[2][l] >= 0.0);
+                    let weighed = interpolate(p, [f[0][l] * per_area, f[1][l] * per_area, f[2][l] * per_area]);
+                    let nearer = pixel.min(weighed as f32);
+                    *pixel = if drawn { nearer } else { *pixel };
+                }
+                from = start + LANES;
+            }
+        }
+    }
 }
+
+/// Pixels of a row that [`Rows::fill_nearest`] tests together, in a vector's lanes.
+const LANES: usize = 4;
 
 /// Candidate pixels up to which a triangle's are each tested alone.
 const SMALL: usize = 4;
@@ -590,13 +654,7 @@ fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visi
                         continue;
                     };
                     let q = tri.map(|i| projected[i as usize]);
-                    let eroded = eroded(t);
-                    match visit.nearest() {
-                        Some(depth) if eroded == [false; 3] && view.pixels >= LANES => {
-                            fill_nearest(q, span, view.pixels, depth);
-                        }
-                        _ => fill_span(view, q, Coverage::Eroded(eroded), |d| d, span, visit),
-                    }
+                    fill_span(view, q, Coverage::Eroded(eroded(t)), |d| d, span, visit);
                 }
             })
         }
@@ -612,59 +670,6 @@ fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visi
                     visit,
                 );
             }
-        }
-    }
-}
-
-/// Pixels of a row that [`fill_nearest`] tests together, in a vector's lanes.
-const LANES: usize = 4;
-
-/// Draws the orthographic screen triangle `p` into `depth`, an n × n image of nearest depths
-/// (n at least `LANES`), at the pixels of `span` whose centres it covers: what [`fill_span`]
-/// draws with no edge flagged, by the same operations, so the same pixels and depths to the bit.
-/// A row's pixels are tested `LANES` at a time, all the same way, those outside the row's
-/// candidates left as they were: no branch on each pixel's test, which no predictor guesses
-/// well on small triangles.
-#[inline(always)]
-fn fill_nearest(p: [DVec3; 3], span: Span, n: usize, depth: &mut [f32]) {
-    let q = p.map(|v| v.truncate());
-    let area = cross(q[1] - q[0], q[2] - q[0]);
-    if area == 0.0 || !area.is_finite() {
-        return;
-    }
-    let edges = turned_edges(q, area);
-    let area = area.abs();
-    let per_area = 1.0 / area;
-    let rising = edges.map(|(e, _)| e.y * area < 0.0);
-    let slopes = edges.map(|(e, _)| 1.0 / e.y);
-    let (x0, x1) = span.x;
-    for y in span.y.0..=span.y.1 {
-        let row = edges.map(|(e, o)| e.x * ((index_to_f64(y) + 0.5) - o.y));
-        // A narrow span is tested whole; a wide one only where the edges cross the row.
-        let (lo, hi) = if x1 - x0 < 2 * LANES {
-            (x0, x1)
-        } else {
-            match row_span(&edges, row, rising, slopes, span.x) {
-                Some(candidates) => candidates,
-                None => continue,
-            }
-        };
-        let mut from = lo;
-        while from <= hi {
-            // At the end of the image's row, its last lanes: those before `lo` are left as they are.
-            let start = from.min(n - LANES);
-            let pixels: &mut [f32; LANES] = (&mut depth[y * n + start..][..LANES]).try_into().unwrap();
-            let centres: [f64; LANES] = std::array::from_fn(|l| index_to_f64(start + l) + 0.5);
-            let f: [[f64; LANES]; 3] =
-                std::array::from_fn(|k| centres.map(|c| row[k] - edges[k].0.y * (c - edges[k].1.x)));
-            for (l, pixel) in pixels.iter_mut().enumerate() {
-                let x = start + l;
-                let drawn = (x >= lo) & (x <= hi) & (f[0][l] >= 0.0) & (f[1][l] >= 0.0) & (f[2][l] >= 0.0);
-                let weighed = interpolate(&p, [f[0][l] * per_area, f[1][l] * per_area, f[2][l] * per_area]);
-                let nearer = pixel.min(weighed as f32);
-                *pixel = if drawn { nearer } else { *pixel };
-            }
-            from = start + LANES;
         }
     }
 }

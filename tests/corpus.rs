@@ -7,6 +7,7 @@ use occluder_cook::cook::cook;
 use occluder_cook::eval::{Quality, ViewSet, evaluate};
 use occluder_cook::geom::openings::{boundary_loops, join_loops};
 use occluder_cook::mesh::{IngestLimits, load_file, topology::orient_closed_components};
+use occluder_cook::occluder::Shape;
 use std::path::Path;
 
 const CLOSED: [&str; 5] = ["spot.obj", "cow.obj", "fandisk.obj", "homer.obj", "duck.glb"];
@@ -96,6 +97,27 @@ fn closed_meshes_have_no_false_pixels() {
         assert!(q.occluder_triangles <= 256, "{name}");
         assert!(q.coverage >= 0.8, "{name}: coverage {}", q.coverage);
     }
+}
+
+/// Fandisk's flat regions bend within the surface pieces' tolerance. Its pieces alone, new
+/// triangles across a dip included, stood out of the solid where a view grazes them: 5 false
+/// pixels at 64 views, all from below, before they were moved in under their regions.
+#[test]
+fn a_closed_meshs_surface_pieces_alone_show_no_false_pixel() {
+    let Some(dir) = common::corpus() else { return };
+    let (mesh, stats) = load_file(&dir.join("fandisk.obj"), &IngestLimits::default()).expect("loads");
+    let mut settings = common::defaults();
+    settings.cook.shapes = vec![Shape::Surface];
+    let cooked = cook(mesh, stats, 0.0, &settings, true).expect("cooks");
+    let q = cooked.report.quality.expect("evaluated");
+    println!(
+        "fandisk.obj, surface pieces only: {} triangles, coverage {:.1}%, false pixels {}",
+        q.occluder_triangles,
+        q.coverage * 100.0,
+        q.false_pixels
+    );
+    assert!(cooked.report.occluder.surface_pieces > 0 && q.coverage > 0.5, "{q:?}");
+    assert_eq!(q.false_pixels, 0);
 }
 
 #[test]

@@ -1,8 +1,9 @@
 //! Surface pieces: the mesh's own triangles, grouped into connected flat regions, each region's
 //! outline triangulated again with as few triangles as it takes (a constrained Delaunay
 //! triangulation of the outline's vertices, by spade). A piece lies on the surface, so it hides
-//! exactly what that part of the surface hides. Pieces are drawn double-sided, but for a closed
-//! part chosen whole, which faces out with the solid.
+//! exactly what that part of the surface hides; a closed part's new triangles lie on it or just
+//! under it, where its region bends. Pieces are drawn double-sided, but for a closed part chosen
+//! whole, which faces out with the solid.
 
 use crate::geom::buckets::Buckets;
 use crate::mesh::Mesh;
@@ -137,6 +138,7 @@ fn piece_of(mesh: &Mesh, region: &[usize], double_sided: bool, tolerance: f64) -
         1 => own(),
         _ => retriangulate(mesh, region, tolerance)
             .filter(|t| t.len() < region.len())
+            .map(|t| if double_sided { t } else { under_region(mesh, region, t) })
             .unwrap_or_else(own),
     };
     SurfacePiece {
@@ -145,6 +147,32 @@ fn piece_of(mesh: &Mesh, region: &[usize], double_sided: bool, tolerance: f64) -
         source_triangles: region.len(),
         double_sided,
     }
+}
+
+/// A closed part's new triangles, moved in along the normal of the region's first triangle
+/// until none stands above the region's lowest corner. They span corners that the region's own
+/// triangles bend between (within the tolerance); where the region dips, they would stand
+/// outside the solid, and a grazing view shows that past the surface, however small. Below the
+/// lowest corner they lie under the region everywhere. An exactly flat region's stay put.
+fn under_region(mesh: &Mesh, region: &[usize], triangles: Vec<[[f64; 3]; 3]>) -> Vec<[[f64; 3]; 3]> {
+    let Some(n) = normal(mesh, region[0]) else {
+        return triangles;
+    };
+    let lowest = region
+        .iter()
+        .flat_map(|&t| mesh.corners(t))
+        .map(|p| n.dot(p.as_dvec3()))
+        .fold(f64::INFINITY, f64::min);
+    let highest = triangles
+        .iter()
+        .flatten()
+        .map(|&c| n.dot(DVec3::from_array(c)))
+        .fold(f64::NEG_INFINITY, f64::max);
+    let drop = n * (highest - lowest).max(0.0);
+    triangles
+        .into_iter()
+        .map(|t| t.map(|c| (DVec3::from_array(c) - drop).to_array()))
+        .collect()
 }
 
 /// The region's outline, triangulated with a constrained Delaunay triangulation of its vertices;
@@ -544,6 +572,29 @@ mod tests {
             let q = t.map(|c| DVec2::new(c[0], c[1]));
             assert!(!contains(&q, centre), "{t:?}");
         }
+    }
+
+    #[test]
+    fn a_closed_parts_piece_lies_under_a_region_that_dips() {
+        let mut mesh = grid(4);
+        // The first triangle stays flat; the other inner corners dip by well within the tolerance.
+        for (v, p) in mesh.positions.iter_mut().enumerate() {
+            let (x, y) = (v % 5, v / 5);
+            if (1..4).contains(&x) && (1..4).contains(&y) && (x, y) != (1, 1) {
+                p.z = -1e-7;
+            }
+        }
+        let lowest = mesh.positions.iter().map(|p| f64::from(p.z)).fold(0.0, f64::min);
+        let closed = find(&mesh, &[false; 32], 1e-6);
+        assert_eq!((closed.len(), closed[0].triangles.len()), (1, 2));
+        for c in closed[0].triangles.iter().flatten() {
+            assert!(c[2] <= lowest, "{c:?} above {lowest}");
+        }
+        // An open part's piece has no inside to go to, and an exactly flat one stays put.
+        let open = find(&mesh, &[true; 32], 1e-6);
+        assert!(open[0].triangles.iter().flatten().all(|c| c[2] == 0.0));
+        let flat = find(&grid(4), &[false; 32], 1e-6);
+        assert!(flat[0].triangles.iter().flatten().all(|c| c[2] == 0.0));
     }
 
     #[test]

@@ -3,6 +3,7 @@
 //! the cook's own 64. Coverage is printed, for the record.
 
 mod common;
+use occluder_cook::config::Settings;
 use occluder_cook::cook::cook;
 use occluder_cook::eval::{Quality, ViewSet, evaluate};
 use occluder_cook::geom::openings::{boundary_loops, join_loops};
@@ -48,11 +49,16 @@ fn cook_corpus_mesh(name: &str) -> Option<Quality> {
     Some(cook_file(&common::corpus()?.join(name)).0)
 }
 
-/// Cooks with evaluation; returns the quality and the cooked occluder.
+/// Cooks with evaluation at the default settings; returns the quality and the cooked occluder.
 fn cook_file(path: &Path) -> (Quality, occluder_cook::cook::Cooked) {
+    cook_file_with(path, &common::defaults())
+}
+
+/// [`cook_file`] at `settings`.
+fn cook_file_with(path: &Path, settings: &Settings) -> (Quality, occluder_cook::cook::Cooked) {
     let name = path.file_name().unwrap().to_string_lossy().to_string();
     let (mesh, stats) = load_file(path, &IngestLimits::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let cooked = cook(mesh, stats, 0.0, &common::defaults(), true).expect("cooks");
+    let cooked = cook(mesh, stats, 0.0, settings, true).expect("cooks");
     let q = cooked.report.quality.clone().expect("evaluated");
     println!(
         "{name}: {} triangles, coverage {:.1}%, false pixels {} / {} non-below, outside {:.2}%",
@@ -105,17 +111,9 @@ fn closed_meshes_have_no_false_pixels() {
 #[test]
 fn a_closed_meshs_surface_pieces_alone_show_no_false_pixel() {
     let Some(dir) = common::corpus() else { return };
-    let (mesh, stats) = load_file(&dir.join("fandisk.obj"), &IngestLimits::default()).expect("loads");
     let mut settings = common::defaults();
     settings.cook.shapes = vec![Shape::Surface];
-    let cooked = cook(mesh, stats, 0.0, &settings, true).expect("cooks");
-    let q = cooked.report.quality.expect("evaluated");
-    println!(
-        "fandisk.obj, surface pieces only: {} triangles, coverage {:.1}%, false pixels {}",
-        q.occluder_triangles,
-        q.coverage * 100.0,
-        q.false_pixels
-    );
+    let (q, cooked) = cook_file_with(&dir.join("fandisk.obj"), &settings);
     assert!(cooked.report.occluder.surface_pieces > 0 && q.coverage > 0.5, "{q:?}");
     assert_eq!(q.false_pixels, 0);
 }

@@ -384,7 +384,6 @@ impl Rows {
         // multiplications a pixel instead of three divisions.
         let per_area = 1.0 / area;
         let depth_at = |f: [f64; 3]| depth(interpolate(p, f.map(|f| f * per_area)));
-        let rows = |y: usize| self.row(y);
         let in_row = |row: [f64; 3]| move |k: usize, x: usize| self.at(&row, k, x);
         let (x0, x1) = span.x;
         let (y0, y1) = span.y;
@@ -394,7 +393,7 @@ impl Rows {
             // size.
             for dy in 0..2 {
                 let y = (y0 + dy).min(y1);
-                let function = in_row(rows(y));
+                let function = in_row(self.row(y));
                 for dx in 0..2 {
                     let x = (x0 + dx).min(x1);
                     let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
@@ -408,7 +407,7 @@ impl Rows {
         if !V::RUNS && (x1 - x0 + 1) * (y1 - y0 + 1) <= SMALL {
             // Few pixels: each tested alone, with the same operations.
             for y in span.y.0..=span.y.1 {
-                let function = in_row(rows(y));
+                let function = in_row(self.row(y));
                 for x in x0..=x1 {
                     let f: [f64; 3] = std::array::from_fn(|k| function(k, x));
                     if holds(0, f[0]) & holds(1, f[1]) & holds(2, f[2]) {
@@ -428,7 +427,7 @@ impl Rows {
         // ([`first_where_near`]).
         let (rising, slopes) = self.crossings();
         for y in span.y.0..=span.y.1 {
-            let row = rows(y);
+            let row = self.row(y);
             let Some((lo, hi)) = row_span(&edges, row, rising, slopes, span.x) else {
                 continue;
             };

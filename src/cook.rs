@@ -332,7 +332,7 @@ fn voxel_stages(
     let open_views = match topology.boundary.is_empty() {
         true => None,
         false => Some(run.on_device("exposure-render", |gpu| {
-            OpenViews::new(mesh, &topology.boundary, winding_field, gpu)
+            OpenViews::new(mesh, &topology.boundary, winding_field, gpu, (grid, &inner))
         })?),
     };
     let exposed_voxels = match &open_views {
@@ -471,7 +471,7 @@ fn unexposed_boxes(views: &OpenViews, candidates: Vec<(WorldBox, WorldBox)>) -> 
         .filter_map(|(i, (refined, on_grid))| {
             [refined, on_grid]
                 .into_iter()
-                .find(|b| views.hides(&b.triangles(), true))
+                .find(|b| views.hides_box(&b.triangles()))
                 .map(|b| (i, b))
         })
         .unzip()
@@ -522,7 +522,7 @@ fn unexposed_quads(views: &OpenViews, quads: Vec<Panel>) -> (Vec<Panel>, [usize;
     let found = quads.len();
     let kept: Vec<(Panel, bool)> = quads
         .into_par_iter()
-        .filter_map(|q| match views.hides(&q.triangles(), false) {
+        .filter_map(|q| match views.hides_panel(&q) {
             true => Some((q, false)),
             false => views.hidden_part(&q).map(|part| (part, true)),
         })

@@ -467,9 +467,10 @@ fn exposed_voxels_on_the_gpu_match_their_cpu_twin() {
         let grid = Grid::fit(lo, hi, 64);
         let topology = orient_closed_components(&mut mesh);
         let field = WindingField::new(&mesh, &topology.boundary);
-        let views = OpenViews::new(&mesh, &topology.boundary, || &field, None).expect("CPU views");
         // Every voxel, so that every corner of the grid is tested.
-        let (mut on_gpu, mut on_cpu) = (vec![true; grid.len()], vec![true; grid.len()]);
+        let every = vec![true; grid.len()];
+        let views = OpenViews::new(&mesh, &topology.boundary, || &field, None, (&grid, &every)).expect("CPU views");
+        let (mut on_gpu, mut on_cpu) = (every.clone(), every.clone());
         let removed = views
             .remove_exposed(&grid, &mut on_gpu, Some(&gpu))
             .expect("GPU corners");

@@ -640,6 +640,17 @@ pub fn draw_eroded(view: &View, mesh: &Mesh, eroded: &[[bool; 3]], depth: &mut [
 /// The pixel centres triangle t of `mesh` covers, less those whose squares the edges flagged
 /// in `eroded(t)` cross ([`Coverage::Eroded`]), into any [`Pixels`], every vertex projected once.
 fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visit: &mut impl Pixels) {
+    fill_triangles(view, mesh, 0..mesh.triangles.len(), eroded, visit);
+}
+
+/// [`fill_mesh`] of the triangles `triangles` (indices into the mesh's) alone.
+fn fill_triangles(
+    view: &View,
+    mesh: &Mesh,
+    triangles: impl Iterator<Item = usize>,
+    eroded: impl Fn(usize) -> [bool; 3],
+    visit: &mut impl Pixels,
+) {
     let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
     match view.lens {
         Lens::Orthographic { .. } => {
@@ -648,7 +659,8 @@ fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visi
             let places: Vec<CentrePlaces> = projected.iter().map(|q| CentrePlaces::of(q, view.pixels)).collect();
             // In AVX2's wider lanes where the CPU has them.
             with_avx2(|| {
-                for (t, tri) in mesh.triangles.iter().enumerate() {
+                for t in triangles {
+                    let tri = &mesh.triangles[t];
                     let Some(span) = CentrePlaces::span(tri.map(|i| places[i as usize]), view.pixels) else {
                         continue;
                     };
@@ -658,7 +670,8 @@ fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visi
             })
         }
         Lens::Perspective { .. } => {
-            for (t, tri) in mesh.triangles.iter().enumerate() {
+            for t in triangles {
+                let tri = &mesh.triangles[t];
                 let corners = tri.map(|i| mesh.positions[i as usize].as_dvec3());
                 fill_perspective(
                     view,
@@ -734,6 +747,20 @@ pub fn draw_depth(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) {
     depth.clear();
     depth.resize(view.pixels * view.pixels, f32::INFINITY);
     fill_mesh(view, mesh, |_| [false; 3], &mut Nearest(depth));
+}
+
+/// [`draw_depth`] of only the triangles `kept` (indices into the mesh's), as if the mesh held no
+/// others.
+pub fn draw_depth_of(view: &View, mesh: &Mesh, kept: &[u32], depth: &mut Vec<f32>) {
+    depth.clear();
+    depth.resize(view.pixels * view.pixels, f32::INFINITY);
+    fill_triangles(
+        view,
+        mesh,
+        kept.iter().map(|&t| t as usize),
+        |_| [false; 3],
+        &mut Nearest(depth),
+    );
 }
 
 /// [`draw_depth`] for a perspective view that many surfaces lie across, one behind another (a

@@ -20,6 +20,7 @@
 //! surface within a pixel (but not touching), the views draw a pixel only where its whole square
 //! lies on the triangle's side: across the crack, they see what lies behind.
 
+pub mod band;
 pub mod gpu;
 
 use super::{Panel, rectangle};
@@ -81,6 +82,223 @@ pub struct OpenViews {
     pixel: f64,
     /// Boundary edges along a crack.
     cracks: usize,
+    /// Where the sky views are drawn only in their bands ([`band`]): what answers the objects
+    /// the band's rule cannot.
+    band: Option<Band>,
+}
+
+/// The sky views drawn in their bands only: every needed grid corner has W″ ≠ 0, and each
+/// image is 0 (hidden) outside its band's window.
+struct Band {
+    walls: Vec<band::Wall>,
+    up: band::UpColumns,
+}
+
+impl Band {
+    /// The band of an open mesh's sky views, with each view's window, where it pays and its rule
+    /// holds for every grid corner the voxels test (`grid`'s corners around `inner` voxels).
+    fn new(
+        mesh: &Mesh,
+        boundary: &[BoundaryEdge],
+        sky: &[View],
+        (grid, inner): (&Grid, &[bool]),
+    ) -> Option<(Band, Vec<Vec<bool>>)> {
+        // The bands pay where their windows leave most of each image out: judged on a few
+        // views first, as a window costs a pass over the walls.
+        let walls = band::walls(mesh, boundary);
+        let window = |view: &View| band::window(view, &walls, BAND_MARGIN, TILE);
+        let sample: Vec<Vec<bool>> = sky
+            .par_iter()
+            .step_by((sky.len() / WINDOW_SAMPLE).max(1))
+            .map(window)
+            .collect();
+        let share = sample.iter().flatten().filter(|&&w| w).count() as f64 / sample.iter().flatten().count() as f64;
+        let needed = needed_corners(grid, inner);
+        if !(share <= MOST_WINDOW_SHARE && needed.contains(&true)) {
+            return None;
+        }
+        // The band's rule holds for every corner the voxels test when each has W″ ≠ 0.
+        let up = band::UpColumns::new(mesh);
+        let [nx, ny, nz] = grid.dims;
+        let holds = (0..(nx + 1) * (nz + 1)).into_par_iter().all(|column| {
+            // The corners one above another share the surface's crossings.
+            let (x, z) = (column / (nz + 1), column % (nz + 1));
+            let mut corners = (0..=ny)
+                .map(|y| corner_point(grid, (x * (ny + 1) + y) * (nz + 1) + z))
+                .zip(needed[..].iter().skip(x * (ny + 1) * (nz + 1) + z).step_by(nz + 1))
+                .filter_map(|(p, &needed)| needed.then_some(p))
+                .peekable();
+            let crossings = corners.peek().map(|&p| up.crossings(p)).unwrap_or_default();
+            corners.all(|p| band::net_above(&crossings, p.y) != 0)
+        });
+        if !holds {
+            return None;
+        }
+        let windows = sky.par_iter().map(window).collect();
+        Some((Band { walls, up }, windows))
+    }
+}
+
+/// Draws the sky views (`pixel` wide pixels) into `out`, their images one after another: the
+/// mesh's triangles (`drawn`, on `gpu` when given) and those along a crack eroded. With
+/// `windows`, each image holds only its window, and is 0 (hidden to every later test) outside it.
+fn draw_sky(
+    (sky, pixel): (&[View], f64),
+    (drawn, split): (&Mesh, &CrackSplit),
+    windows: Option<&[Vec<bool>]>,
+    gpu: Option<&Gpu>,
+    out: &mut [f32],
+) -> Result<(), GpuError> {
+    let mask = |window: &[bool], image: &mut [f32]| {
+        for (i, depth) in image.iter_mut().enumerate() {
+            let (x, y) = (i % PIXELS, i / PIXELS);
+            if !window[(y / TILE) * (PIXELS / TILE) + x / TILE] {
+                *depth = 0.0;
+            }
+        }
+    };
+    let finish = |v: usize, view: &View, image: &mut [f32], out: &mut [f32]| {
+        draw_eroded(view, &split.soup, &split.eroded, image);
+        if let Some(windows) = windows {
+            mask(&windows[v], image);
+        }
+        farthest_nearby(image, PIXELS, out);
+    };
+    let out = out.par_chunks_mut(PIXELS * PIXELS).zip(sky).enumerate();
+    match gpu {
+        Some(gpu) => {
+            let images = raster::depth_images(sky, drawn, Some(gpu))?;
+            out.zip(images)
+                .for_each(|((v, (out, view)), mut image)| finish(v, view, &mut image, out));
+        }
+        None => {
+            let small = windows.map(|_| small_triangles(drawn, pixel));
+            out.for_each_init(
+                || (Vec::new(), Vec::new()),
+                |(image, kept), (v, (out, view))| {
+                    match (windows, &small) {
+                        (Some(windows), Some(small)) => {
+                            window_triangles(view, drawn, &windows[v], small, kept);
+                            raster::draw_depth_of(view, drawn, kept, image);
+                        }
+                        _ => draw_depth(view, drawn, image),
+                    }
+                    finish(v, view, image, out);
+                },
+            )
+        }
+    }
+    Ok(())
+}
+
+/// How far from a point, in pixels, lie the centres of the pixels whose depths decide whether
+/// it shows: its pixel's 3 × 3 neighbours.
+const NEARBY_READ: f64 = 1.5 * std::f64::consts::SQRT_2;
+
+/// Pixels around the band that the sky views draw: a point in the band, or a pixel's
+/// diagonal from it, reads only pixels within [`NEARBY_READ`] more.
+const BAND_MARGIN: f64 = 4.0;
+
+/// Sky views whose windows judge whether the bands pay.
+const WINDOW_SAMPLE: usize = 4;
+
+/// The largest share of the sampled views' tiles their windows may hold for the bands to pay:
+/// beyond it, drawing in windows saved less than finding them cost (2cylinder-engine, 0.57).
+const MOST_WINDOW_SHARE: f64 = 1.0 / 3.0;
+
+/// A rectangle (a panel, a box's face) cut into `n` cells along its sides `u` and `v` from
+/// `origin`, each about a pixel of the sky views wide.
+struct RectangleCells {
+    origin: DVec3,
+    u: DVec3,
+    v: DVec3,
+    n: [usize; 2],
+}
+
+impl RectangleCells {
+    /// The grid point `i` cells along `u` and `j` along `v`.
+    fn at(&self, i: usize, j: usize) -> DVec3 {
+        self.origin + self.u * (i as f64 / self.n[0] as f64) + self.v * (j as f64 / self.n[1] as f64)
+    }
+}
+
+/// Triangles no edge of which is longer than 6 pixels (`pixel` wide) of the sky views.
+fn small_triangles(mesh: &Mesh, pixel: f64) -> Vec<bool> {
+    let most = 6.0 * pixel;
+    (0..mesh.triangles.len())
+        .into_par_iter()
+        .map(|t| {
+            let c = mesh.corners(t).map(|p| p.as_dvec3());
+            c[0].distance(c[1]).max(c[1].distance(c[2])).max(c[2].distance(c[0])) <= most
+        })
+        .collect()
+}
+
+/// Into `kept`, the triangles of `mesh` that may draw a pixel in a tile of `window`: a small
+/// one (`small`) with a corner in the window grown by a tile, any other with its bounds, and a
+/// pixel around, meeting it.
+fn window_triangles(view: &View, mesh: &Mesh, window: &[bool], small: &[bool], kept: &mut Vec<u32>) {
+    let tiles = PIXELS / TILE;
+    let mut grown = vec![false; tiles * tiles];
+    let mut sums = vec![0u32; (tiles + 1) * (tiles + 1)];
+    for y in 0..tiles {
+        for x in 0..tiles {
+            if window[y * tiles + x] {
+                for gy in y.saturating_sub(1)..(y + 2).min(tiles) {
+                    grown[gy * tiles + x.saturating_sub(1)..gy * tiles + (x + 2).min(tiles)].fill(true);
+                }
+            }
+            sums[(y + 1) * (tiles + 1) + x + 1] =
+                u32::from(window[y * tiles + x]) + sums[y * (tiles + 1) + x + 1] + sums[(y + 1) * (tiles + 1) + x]
+                    - sums[y * (tiles + 1) + x];
+        }
+    }
+    let any = |[x0, y0]: [usize; 2], [x1, y1]: [usize; 2]| {
+        sums[y1 * (tiles + 1) + x1] + sums[y0 * (tiles + 1) + x0]
+            > sums[y0 * (tiles + 1) + x1] + sums[y1 * (tiles + 1) + x0]
+    };
+    // Truncating a clamped value: `floor` is a library call on this target.
+    let tile = |v: f64| ((v.max(0.0) * (1.0 / TILE as f64)) as usize).min(tiles - 1);
+    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
+    let near: Vec<bool> = projected.iter().map(|q| grown[tile(q.y) * tiles + tile(q.x)]).collect();
+    kept.clear();
+    for (t, (corners, &small)) in mesh.triangles.iter().zip(small).enumerate() {
+        let keep = if small {
+            corners.iter().any(|&i| near[i as usize])
+        } else {
+            let c = corners.map(|i| projected[i as usize]);
+            let (lo, hi) = (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]));
+            any(
+                [tile(lo.x - 1.0), tile(lo.y - 1.0)],
+                [tile(hi.x + 1.0) + 1, tile(hi.y + 1.0) + 1],
+            )
+        };
+        if keep {
+            kept.push(t as u32);
+        }
+    }
+}
+
+/// The grid corners (z fastest) that one of the voxels around them, up to 8, is inner.
+fn needed_corners(grid: &Grid, inner: &[bool]) -> Vec<bool> {
+    let [nx, ny, nz] = grid.dims;
+    let [ny1, nz1] = [ny + 1, nz + 1];
+    (0..(nx + 1) * ny1 * nz1)
+        .into_par_iter()
+        .map(|c| {
+            let (x, y, z) = (c / (ny1 * nz1), (c / nz1) % ny1, c % nz1);
+            let around = |v: usize, n: usize| v.saturating_sub(1)..v.min(n - 1) + 1;
+            around(x, nx).any(|vx| around(y, ny).any(|vy| around(z, nz).any(|vz| inner[grid.index(vx, vy, vz)])))
+        })
+        .collect()
+}
+
+/// The world point of grid corner c (z fastest).
+fn corner_point(grid: &Grid, c: usize) -> DVec3 {
+    let [_, ny, nz] = grid.dims;
+    let (ny1, nz1) = (ny + 1, nz + 1);
+    let (x, y, z) = (c / (ny1 * nz1), (c / nz1) % ny1, c % nz1);
+    grid.to_world(DVec3::new(x as f64, y as f64, z as f64))
 }
 
 impl OpenViews {
@@ -92,6 +310,7 @@ impl OpenViews {
         boundary: &[BoundaryEdge],
         winding_field: impl Fn() -> &'f WindingField<'f> + Sync,
         gpu: Option<&Gpu>,
+        (grid, inner): (&Grid, &[bool]),
     ) -> Result<OpenViews, GpuError> {
         let (center, radius) = mesh.bounding_sphere();
         let horizon = (0..HORIZON_DIRECTIONS).map(|k| {
@@ -132,29 +351,14 @@ impl OpenViews {
         let (sky, eyes) = views.split_at(sky_views);
         let drawn = split.uncracked.as_ref().unwrap_or(mesh);
         // Triangles along a crack are drawn eroded on the CPU, over the rest.
-        let finish = |view: &View, image: &mut [f32], out: &mut [f32]| {
-            draw_eroded(view, &split.soup, &split.eroded, image);
-            farthest_nearby(image, PIXELS, out);
-        };
         let lowest = lowest_corners(mesh);
+        let banded = Band::new(mesh, boundary, sky, (grid, inner));
         // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
         // openings meanwhile.
         let (sky_drawn, ()) = rayon::join(
             || {
-                let sky_depths = sky_depths.par_chunks_mut(PIXELS * PIXELS).zip(sky);
-                match gpu {
-                    Some(gpu) => {
-                        let images = raster::depth_images(sky, drawn, Some(gpu))?;
-                        sky_depths
-                            .zip(images)
-                            .for_each(|((out, view), mut image)| finish(view, &mut image, out));
-                    }
-                    None => sky_depths.for_each_init(Vec::new, |image, (out, view)| {
-                        draw_depth(view, drawn, image);
-                        finish(view, image, out);
-                    }),
-                }
-                Ok::<_, GpuError>(())
+                let windows = banded.as_ref().map(|(_, windows)| windows.as_slice());
+                draw_sky((sky, pixel), (drawn, &split), windows, gpu, sky_depths)
             },
             || {
                 let eyes = eye_depths.par_chunks_mut(PIXELS * PIXELS).zip(eyes).zip(&horizons);
@@ -182,6 +386,7 @@ impl OpenViews {
             tiles,
             pixel,
             cracks: cracked.values().flatten().filter(|&&e| e).count(),
+            band: banded.map(|(band, _)| band),
         })
     }
 
@@ -225,21 +430,11 @@ impl OpenViews {
     /// `Unsupported` where the GPU cannot test them, with `inner` untouched.
     pub fn remove_exposed(&self, grid: &Grid, inner: &mut [bool], gpu: Option<&Gpu>) -> Result<usize, GpuError> {
         // Neighbouring voxels share corners: test each corner once.
-        let [_, ny, nz] = grid.dims;
         let corners_of = |i: usize| {
             let [x, y, z] = grid.coords(i);
             (0..8).map(move |c| corner_index(grid, [x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1)]))
         };
-        // A corner is needed when one of the (up to 8) voxels around it is inner.
-        let [nx, ny1, nz1] = [grid.dims[0], ny + 1, nz + 1];
-        let needed: Vec<bool> = (0..(nx + 1) * ny1 * nz1)
-            .into_par_iter()
-            .map(|c| {
-                let (x, y, z) = (c / (ny1 * nz1), (c / nz1) % ny1, c % nz1);
-                let around = |v: usize, n: usize| v.saturating_sub(1)..v.min(n - 1) + 1;
-                around(x, nx).any(|vx| around(y, ny).any(|vy| around(z, nz).any(|vz| inner[grid.index(vx, vy, vz)])))
-            })
-            .collect();
+        let needed = needed_corners(grid, inner);
         // `Unsupported` on the GPU leaves `inner` as it was, for the caller to run this again
         // on the CPU.
         let seen = match gpu {
@@ -275,7 +470,7 @@ impl OpenViews {
                 .for_each(|(b, seen)| {
                     let (lo, hi) = bricks.bounds[b];
                     let points = &bricks.points[bricks.starts[b]..bricks.starts[b + 1]];
-                    for v in block.clone().filter(|&v| !self.hides_box(v, lo, hi)) {
+                    for v in block.clone().filter(|&v| !self.view_hides_box(v, lo, hi)) {
                         for (seen, &p) in seen.iter_mut().zip(points) {
                             *seen = *seen || self.sees(v, p);
                         }
@@ -293,7 +488,7 @@ impl OpenViews {
     /// the box lies wholly above the opening or behind the camera; any view, none where the box
     /// lies in front of it, projects onto the image, and lies behind the farthest depth of every
     /// tile under it. Rounding moves the box's points by far less than the margins.
-    fn hides_box(&self, v: usize, lo: DVec3, hi: DVec3) -> bool {
+    fn view_hides_box(&self, v: usize, lo: DVec3, hi: DVec3) -> bool {
         let view = &self.views[v];
         let (tolerance, rounding) = (view.depth_tolerance(), self.rounding());
         if self.horizon(v).is_some_and(|horizon| lo.y - rounding > horizon) {
@@ -318,15 +513,30 @@ impl OpenViews {
     /// pixel around.
     fn farthest_over(&self, v: usize, lo: DVec3, hi: DVec3) -> f32 {
         let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
-        let far = self.tiles_of(v);
+        let far = self.images(v).1;
         rows.flat_map(|ty| columns.clone().map(move |tx| far[ty * (PIXELS / TILE) + tx]))
             .fold(0f32, f32::max)
     }
 
-    /// View `v`'s farthest depth of each tile, a row of tiles after another.
-    fn tiles_of(&self, v: usize) -> &[f32] {
-        let tiles = (PIXELS / TILE).pow(2);
-        &self.tiles[v * tiles..(v + 1) * tiles]
+    /// View `v`'s image (each pixel's farthest depth nearby) and the farthest depth of each of
+    /// its tiles, a row after another.
+    fn images(&self, v: usize) -> (&[f32], &[f32]) {
+        let (pixels, tiles) = (PIXELS * PIXELS, (PIXELS / TILE).pow(2));
+        (
+            &self.depths[v * pixels..(v + 1) * pixels],
+            &self.tiles[v * tiles..(v + 1) * tiles],
+        )
+    }
+
+    /// Whether the images drawn in bands answer for these triangles (a box, a quad): none meets
+    /// the curtain, and W″ ≠ 0 at their centre. They cross the surface nowhere, so W″ is the
+    /// same all over them.
+    fn band_answers(&self, triangles: &[[DVec3; 3]]) -> bool {
+        self.band.as_ref().is_none_or(|band| {
+            let points = triangles.len() as f64 * 3.0;
+            let centre = triangles.iter().flatten().copied().sum::<DVec3>() / points;
+            !band.walls.iter().any(|w| w.meets_any(triangles)) && band.up.net_crossings_above(centre) != 0
+        })
     }
 
     /// [`OpenViews::seen_corners`] on the GPU.
@@ -360,11 +570,22 @@ impl OpenViews {
             .collect())
     }
 
-    /// Whether no view sees any pixel of these triangles (a box, a quad) in front of the
-    /// original. With `closed_convex` (a box), faces turned away from a view are skipped: the
-    /// faces turned towards it cover them.
-    pub fn hides(&self, triangles: &[[DVec3; 3]], closed_convex: bool) -> bool {
-        (0..self.views.len()).all(|v| self.hidden_from(v, triangles, closed_convex))
+    /// Whether no view sees any pixel of a box (its triangles, two a face as in
+    /// [`BOX_FACES`]) in front of the original. Faces turned away from a view are skipped: the
+    /// faces turned towards it cover them. What the bands cannot answer for counts as shown.
+    pub fn hides_box(&self, triangles: &[[DVec3; 3]; 12]) -> bool {
+        triangles
+            .chunks_exact(2)
+            .all(|face| self.band_answers_rectangle(face[0], face[1][2]))
+            && (0..self.views.len()).all(|v| self.hidden_from(v, triangles, true))
+    }
+
+    /// Whether no view sees any point of `panel` in front of the original. What the bands
+    /// cannot answer for counts as shown.
+    pub fn hides_panel(&self, panel: &Panel) -> bool {
+        let triangles = panel.triangles();
+        self.band_answers_rectangle(triangles[0], triangles[1][2])
+            && (0..self.views.len()).all(|v| self.hidden_from(v, &triangles, false))
     }
 
     /// Whether view `v` sees no pixel of these triangles in front of the original.
@@ -380,19 +601,19 @@ impl OpenViews {
     }
 
     /// The largest rectangle of `panel` that no view sees: the panel cut into cells about one
-    /// pixel of these views wide, a cell left out where a view sees a point of it. `None` when
-    /// no rectangle of at least 2 × 2 cells is hidden, or the rectangle still shows.
+    /// pixel of these views wide, a cell left out where a view sees a point of it or the bands
+    /// cannot answer for it. `None` when no rectangle of at least 2 × 2 cells is hidden, or the
+    /// rectangle still shows.
     pub fn hidden_part(&self, panel: &Panel) -> Option<Panel> {
-        let corner = |i: usize| DVec3::from_array(panel.corners[i]);
-        let (origin, u, v) = (corner(0), corner(1) - corner(0), corner(3) - corner(0));
-        let cells = |side: DVec3| ((side.length() / self.pixel).ceil() as usize).clamp(1, MAX_PART_CELLS);
-        let (nu, nv) = (cells(u), cells(v));
+        let [t, s] = panel.triangles();
+        let cells = self.cells_of(t, s[2]);
+        let [nu, nv] = cells.n;
         // The cells a point lies in, both where it lies on the line between two.
         let cells_at = |p: DVec3| {
-            let d = p - origin;
+            let d = p - cells.origin;
             let (a, b) = (
-                d.dot(u) / u.length_squared() * nu as f64,
-                d.dot(v) / v.length_squared() * nv as f64,
+                d.dot(cells.u) / cells.u.length_squared() * nu as f64,
+                d.dot(cells.v) / cells.v.length_squared() * nv as f64,
             );
             let around = |x: f64, n: usize| {
                 let cell = |x: f64| (x.floor().max(0.0) as usize).min(n - 1);
@@ -401,30 +622,71 @@ impl OpenViews {
             let (ia, ib) = (around(a, nu), around(b, nv));
             ia.into_iter().flat_map(move |i| ib.map(|j| i * nv + j))
         };
+        let mut hidden = match self.unanswered_cells(&[t, s], &cells) {
+            Some(unanswered) => unanswered.into_iter().map(|u| !u).collect(),
+            None => vec![true; nu * nv],
+        };
+        let mut left = hidden.iter().filter(|&&h| h).count();
         // View after view, until too few cells are left to hold a rectangle of 2 × 2.
-        let (mut hidden, mut left) = (vec![true; nu * nv], nu * nv);
         for view in 0..self.views.len() {
-            for triangle in panel.triangles() {
+            if left < 4 {
+                return None;
+            }
+            for triangle in [t, s] {
                 self.visit_seen(view, &triangle, |p| {
                     for cell in cells_at(p) {
                         left -= usize::from(std::mem::replace(&mut hidden[cell], false));
                     }
                 });
             }
-            if left < 4 {
-                return None;
-            }
         }
         let part = rectangle::largest(&hidden, nu, nv, 2)?;
-        let at = |i: usize, j: usize| origin + u * (i as f64 / nu as f64) + v * (j as f64 / nv as f64);
         let [i, j] = [part.u, part.v];
-        let corners = [at(i[0], j[0]), at(i[1], j[0]), at(i[1], j[1]), at(i[0], j[1])];
+        let corners = [[i[0], j[0]], [i[1], j[0]], [i[1], j[1]], [i[0], j[1]]];
         let part = Panel {
             shape: panel.shape,
-            corners: corners.map(|p| p.to_array()),
+            corners: corners.map(|[i, j]| cells.at(i, j).to_array()),
         };
         // Cut along pixel centres, the part is checked again as a whole.
-        self.hides(&part.triangles(), false).then_some(part)
+        self.hides_panel(&part).then_some(part)
+    }
+
+    /// The rectangle with corners `a`, `b`, `c` (its first triangle) and `d` cut into cells
+    /// about one pixel of the sky views wide.
+    fn cells_of(&self, [a, b, _]: [DVec3; 3], d: DVec3) -> RectangleCells {
+        let (u, v) = (b - a, d - a);
+        let cells = |side: DVec3| ((side.length() / self.pixel).ceil() as usize).clamp(1, MAX_PART_CELLS);
+        RectangleCells {
+            origin: a,
+            u,
+            v,
+            n: [cells(u), cells(v)],
+        }
+    }
+
+    /// The cells of a rectangle (its two triangles) the bands may answer wrongly for, or `None`
+    /// where they answer for all of it ([`OpenViews::band_answers`]). A cell is answered where
+    /// W″ ≠ 0 all over it, or where a wall meets it and it is small enough that every pixel it
+    /// reads lies in each sky view's window.
+    fn unanswered_cells(&self, triangles: &[[DVec3; 3]; 2], cells: &RectangleCells) -> Option<Vec<bool>> {
+        let band = self.band.as_ref().filter(|_| !self.band_answers(triangles))?;
+        let [nu, nv] = cells.n;
+        let diagonal = (cells.u / nu as f64).length().hypot((cells.v / nv as f64).length()) / self.pixel;
+        Some(band::unanswered_cells(
+            &band.walls,
+            &band.up,
+            |i, j| cells.at(i, j),
+            cells.n,
+            diagonal + NEARBY_READ < BAND_MARGIN,
+        ))
+    }
+
+    /// Whether the bands answer for every point of the rectangle with corners `a`, `b`, `c`
+    /// (its first triangle) and `d`.
+    fn band_answers_rectangle(&self, triangle: [DVec3; 3], d: DVec3) -> bool {
+        let triangles = [triangle, [triangle[0], triangle[2], d]];
+        self.unanswered_cells(&triangles, &self.cells_of(triangle, d))
+            .is_none_or(|unanswered| !unanswered.contains(&true))
     }
 
     fn hides_triangle(&self, v: usize, triangle: &[DVec3; 3]) -> bool {
@@ -436,10 +698,7 @@ impl OpenViews {
     /// Calls `seen` with the point of `triangle` at each pixel where view `v` sees it in front
     /// of the original. A camera in an opening counts only what lies no higher than the opening.
     fn visit_seen(&self, v: usize, triangle: &[DVec3; 3], mut seen: impl FnMut(DVec3)) {
-        let (view, depth) = (
-            &self.views[v],
-            &self.depths[v * PIXELS * PIXELS..(v + 1) * PIXELS * PIXELS],
-        );
+        let (view, (depth, far)) = (&self.views[v], self.images(v));
         let (tolerance, horizon) = (view.depth_tolerance(), self.horizon(v));
         let mut visit = |i: usize, d: f64| {
             if d < f64::from(depth[i]) - tolerance {
@@ -467,7 +726,7 @@ impl OpenViews {
         // depth of every tile under its screen bounds shows nowhere.
         let farthest = self.farthest_over(v, lo, hi);
         let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
-        let (tiles, far) = (PIXELS / TILE, self.tiles_of(v));
+        let tiles = PIXELS / TILE;
         let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
         if on_screen && lo.z >= f64::from(farthest) - tolerance {
             return;
@@ -916,7 +1175,104 @@ mod tests {
     fn views_of(mut mesh: Mesh) -> OpenViews {
         let topology = orient_closed_components(&mut mesh);
         let field = WindingField::new(&mesh, &topology.boundary);
-        OpenViews::new(&mesh, &topology.boundary, || &field, None).expect("the CPU draws")
+        let grid = Grid::fit(Vec3::ZERO, Vec3::ONE, 4);
+        let no_inner = vec![false; grid.len()];
+        OpenViews::new(&mesh, &topology.boundary, || &field, None, (&grid, &no_inner)).expect("the CPU draws")
+    }
+
+    /// A unit cube, open on face `open` (of [`BOX_FACES`]) if any, oriented, with its boundary.
+    pub(super) fn open_cube(open: Option<usize>) -> (Mesh, Vec<BoundaryEdge>) {
+        let mut mesh = Mesh {
+            positions: (0..8)
+                .map(|i| Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32))
+                .collect(),
+            triangles: Vec::new(),
+        };
+        for (_, q) in BOX_FACES.iter().enumerate().filter(|&(f, _)| Some(f) != open) {
+            let q = q.map(|i| i as u32);
+            mesh.triangles.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
+        }
+        let topology = orient_closed_components(&mut mesh);
+        (mesh, topology.boundary)
+    }
+
+    /// [`open_cube`] with a grid over it, the voxels wholly inside the cube inner.
+    fn open_box(open: usize) -> (Mesh, Vec<BoundaryEdge>, Grid, Vec<bool>) {
+        let (mesh, boundary) = open_cube(Some(open));
+        let grid = Grid::fit(Vec3::ZERO, Vec3::ONE, 10);
+        let inner = (0..grid.len())
+            .map(|i| {
+                let [x, y, z] = grid.coords(i);
+                let lo = grid.to_world(DVec3::new(x as f64, y as f64, z as f64));
+                let hi = lo + grid.voxel_size;
+                lo.min_element() > 1e-9 && hi.max_element() < 1.0 - 1e-9
+            })
+            .collect();
+        (mesh, boundary, grid, inner)
+    }
+
+    /// Whether the ray from `p` along `dir` crosses a triangle of `mesh`.
+    fn ray_crosses(mesh: &Mesh, p: DVec3, dir: DVec3) -> bool {
+        (0..mesh.triangles.len()).any(|t| {
+            let [a, b, c] = mesh.corners(t).map(|v| v.as_dvec3());
+            let (e1, e2) = (b - a, c - a);
+            let h = dir.cross(e2);
+            let det = e1.dot(h);
+            if det.abs() < 1e-12 {
+                return false;
+            }
+            let s = p - a;
+            let u = s.dot(h) / det;
+            let q = s.cross(e1);
+            let v = dir.dot(q) / det;
+            let t = e2.dot(q) / det;
+            (-1e-9..=1.0 + 1e-9).contains(&u) && v >= -1e-9 && u + v <= 1.0 + 1e-9 && t > 1e-9
+        })
+    }
+
+    #[test]
+    fn where_the_sky_views_are_drawn_in_bands_every_corner_they_hide_is_behind_the_surface() {
+        // Open on the side at x = 1: the top lies over every inner corner (W″ = 1), and from
+        // the right the inside shows through the opening.
+        let (mesh, boundary, grid, inner) = open_box(1);
+        let field = WindingField::new(&mesh, &boundary);
+        let views = OpenViews::new(&mesh, &boundary, || &field, None, (&grid, &inner)).expect("the CPU draws");
+        assert!(views.band.is_some(), "every inner corner has W″ ≠ 0");
+        let needed = needed_corners(&grid, &inner);
+        let (mut seen, mut hidden) = (0, 0);
+        for c in (0..needed.len()).filter(|&c| needed[c]) {
+            let p = corner_point(&grid, c);
+            for v in 0..views.sky_views {
+                if views.sees(v, p) {
+                    seen += 1;
+                } else {
+                    hidden += 1;
+                    assert!(
+                        ray_crosses(&mesh, p, views.views[v].dir),
+                        "view {v} hides {p} in the open"
+                    );
+                }
+            }
+        }
+        assert!(seen > 1_000 && hidden > 10_000, "{seen} seen, {hidden} hidden");
+        // A quad through the opening meets the curtain hanging from its top edge, and counts as
+        // shown; one deep inside does not.
+        let quad = |x: [f64; 2]| Panel {
+            shape: Shape::Quads,
+            corners: [[x[0], 0.5, 0.2], [x[1], 0.5, 0.2], [x[1], 0.5, 0.8], [x[0], 0.5, 0.8]],
+        };
+        assert!(!views.band_answers(&quad([0.6, 1.4]).triangles()));
+        assert!(!views.hides_panel(&quad([0.6, 1.4])));
+        assert!(views.band_answers(&quad([0.1, 0.3]).triangles()));
+    }
+
+    #[test]
+    fn an_inside_open_to_the_sky_is_drawn_whole() {
+        // Open at the top (face 3, y = 1): nothing lies over the inside, so W″ = 0 there.
+        let (mesh, boundary, grid, inner) = open_box(3);
+        let field = WindingField::new(&mesh, &boundary);
+        let views = OpenViews::new(&mesh, &boundary, || &field, None, (&grid, &inner)).expect("the CPU draws");
+        assert!(views.band.is_none());
     }
 
     #[test]
@@ -1113,7 +1469,7 @@ mod tests {
         for _ in 0..200 {
             let lo = DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 1.4 - 0.2;
             let hi = lo + DVec3::new(rng.f64(), rng.f64(), rng.f64()) * 0.3;
-            for v in (0..views.views.len()).filter(|&v| views.hides_box(v, lo, hi)) {
+            for v in (0..views.views.len()).filter(|&v| views.view_hides_box(v, lo, hi)) {
                 skipped[usize::from(v >= views.sky_views)] += 1;
                 for k in 0..27 {
                     let t = DVec3::new((k % 3) as f64, (k / 3 % 3) as f64, (k / 9) as f64) / 2.0;
@@ -1129,7 +1485,7 @@ mod tests {
         // A crack a hundred-thousandth of the cube wide, far narrower than a pixel.
         let cracked = views_of(split_cube(1e-5));
         assert!(cracked.cracks() > 0);
-        assert!(!cracked.hides(&under_the_top().triangles(), false));
+        assert!(!cracked.hides_panel(&under_the_top()));
         // From straight above, pixel centres would all but miss it: the top's pixels along the
         // crack see past the top.
         let above = (0..cracked.sky_views)
@@ -1153,7 +1509,7 @@ mod tests {
         // Where the halves touch, the cube is closed: nothing inside shows.
         let closed = views_of(split_cube(0.0));
         assert_eq!(closed.cracks(), 0);
-        assert!(closed.hides(&under_the_top().triangles(), false));
+        assert!(closed.hides_panel(&under_the_top()));
     }
 
     #[test]
@@ -1161,9 +1517,9 @@ mod tests {
         let views = views_of(split_cube(0.0));
         // Half inside the closed cube, half beside it, where every side view sees it.
         let across = panel([[0.2, 0.2, 0.5], [1.8, 0.2, 0.5], [1.8, 0.8, 0.5], [0.2, 0.8, 0.5]]);
-        assert!(!views.hides(&across.triangles(), false));
+        assert!(!views.hides_panel(&across));
         let part = views.hidden_part(&across).expect("the half inside is hidden");
-        assert!(views.hides(&part.triangles(), false));
+        assert!(views.hides_panel(&part));
         let xs = part.corners.map(|c| c[0]);
         let (lo, hi) = (
             xs.iter().copied().fold(f64::INFINITY, f64::min),

@@ -6,7 +6,9 @@
 //! counted exactly once.
 
 use super::Grid;
+use crate::geom::buckets::Buckets;
 use crate::mesh::Mesh;
+use glam::{DVec2, DVec3};
 use num_traits::Float;
 use rayon::prelude::*;
 
@@ -133,5 +135,72 @@ impl ColumnCrossings {
             }
             (total - below_sum, (column.len() - below) as u32)
         })
+    }
+}
+
+/// A mesh's triangles bucketed by their xy footprint, so that a vertical line meets only the
+/// triangles of its bucket.
+pub struct ColumnIndex {
+    /// The footprint's least corner, the buckets' side and their count along x and y.
+    lo: DVec2,
+    cell: f64,
+    dims: [usize; 2],
+    /// Bucket x·dims[1] + y's triangles.
+    buckets: Buckets<u32>,
+}
+
+impl ColumnIndex {
+    pub fn new(mesh: &Mesh) -> ColumnIndex {
+        let (lo, hi) = mesh.bounds();
+        let (lo, hi) = (lo.as_dvec3().truncate(), hi.as_dvec3().truncate());
+        let extent = (hi - lo).max(DVec2::splat(1e-9));
+        // About four triangles per bucket on a surface spread over the footprint.
+        let cells = ((mesh.triangles.len() as f64 / 4.0).sqrt().ceil() as usize).clamp(1, 1024);
+        let cell = extent.max_element() / cells as f64;
+        let dims = [
+            (extent.x / cell).ceil() as usize + 1,
+            (extent.y / cell).ceil() as usize + 1,
+        ];
+        let pairs = (0..mesh.triangles.len()).flat_map(|t| {
+            let tri = mesh.corners(t).map(|v| v.as_dvec3().truncate());
+            let a = ((tri[0].min(tri[1]).min(tri[2]) - lo) / cell).floor();
+            let b = ((tri[0].max(tri[1]).max(tri[2]) - lo) / cell).floor();
+            let clamp = |v: f64, k: usize| (v.max(0.0) as usize).min(dims[k] - 1);
+            let ys = clamp(a.y, 1)..=clamp(b.y, 1);
+            (clamp(a.x, 0)..=clamp(b.x, 0)).flat_map(move |x| ys.clone().map(move |y| (x * dims[1] + y, t as u32)))
+        });
+        ColumnIndex {
+            lo,
+            cell,
+            dims,
+            buckets: Buckets::new(dims[0] * dims[1], pairs),
+        }
+    }
+
+    /// The triangles of the bucket that holds `p`'s footprint: every one the vertical line
+    /// through `p` may meet. None outside the mesh's footprint.
+    pub fn triangles_at(&self, p: DVec3) -> &[u32] {
+        let q = (p.truncate() - self.lo) / self.cell;
+        if q.x >= 0.0 && q.y >= 0.0 && (q.x as usize) < self.dims[0] && (q.y as usize) < self.dims[1] {
+            self.buckets.get(q.x as usize * self.dims[1] + q.y as usize)
+        } else {
+            &[]
+        }
+    }
+
+    /// The triangles whose footprint buckets meet the xy box [lo, hi]: a superset of those
+    /// that reach into it, sorted.
+    pub fn triangles_over(&self, lo: DVec2, hi: DVec2) -> Vec<u32> {
+        let bucket =
+            |p: DVec2, k: usize| (((p[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize).min(self.dims[k] - 1);
+        let mut out = Vec::new();
+        for x in bucket(lo, 0)..=bucket(hi, 0) {
+            for y in bucket(lo, 1)..=bucket(hi, 1) {
+                out.extend_from_slice(self.buckets.get(x * self.dims[1] + y));
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
     }
 }

@@ -14,7 +14,7 @@
 mod far_field;
 pub mod gpu;
 
-use super::{Grid, columns::ColumnCrossings, columns::column_hit};
+use super::{Grid, columns::ColumnCrossings, columns::ColumnIndex, columns::column_hit};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use far_field::FarField;
 use glam::{DVec2, DVec3};
@@ -408,82 +408,22 @@ pub fn direct(mesh: &Mesh, p: DVec3) -> f64 {
 pub struct WindingField<'a> {
     mesh: &'a Mesh,
     curtain: Curtain,
-    lo: DVec2,
-    cell: f64,
-    dims: [usize; 2],
-    offsets: Vec<usize>,
-    triangles: Vec<u32>,
+    columns: ColumnIndex,
 }
 
 impl<'a> WindingField<'a> {
     pub fn new(mesh: &'a Mesh, boundary: &'a [BoundaryEdge]) -> WindingField<'a> {
-        let (lo, hi) = mesh.bounds();
-        let (lo, hi) = (lo.as_dvec3().truncate(), hi.as_dvec3().truncate());
-        let extent = (hi - lo).max(DVec2::splat(1e-9));
-        // About four triangles per bucket on a surface spread over the footprint.
-        let cells = ((mesh.triangles.len() as f64 / 4.0).sqrt().ceil() as usize).clamp(1, 1024);
-        let cell = extent.max_element() / cells as f64;
-        let dims = [
-            (extent.x / cell).ceil() as usize + 1,
-            (extent.y / cell).ceil() as usize + 1,
-        ];
-        let range = |t: usize| {
-            let tri = mesh.corners(t).map(|v| v.as_dvec3().truncate());
-            let a = ((tri[0].min(tri[1]).min(tri[2]) - lo) / cell).floor();
-            let b = ((tri[0].max(tri[1]).max(tri[2]) - lo) / cell).floor();
-            let clamp = |v: f64, k: usize| (v.max(0.0) as usize).min(dims[k] - 1);
-            (clamp(a.x, 0)..=clamp(b.x, 0), clamp(a.y, 1)..=clamp(b.y, 1))
-        };
-        let mut offsets = vec![0usize; dims[0] * dims[1] + 1];
-        for t in 0..mesh.triangles.len() {
-            let (rx, ry) = range(t);
-            for x in rx {
-                for y in ry.clone() {
-                    offsets[x * dims[1] + y + 1] += 1;
-                }
-            }
-        }
-        for i in 0..dims[0] * dims[1] {
-            offsets[i + 1] += offsets[i];
-        }
-        let mut fill = offsets.clone();
-        let mut triangles = vec![0u32; offsets[dims[0] * dims[1]]];
-        for t in 0..mesh.triangles.len() {
-            let (rx, ry) = range(t);
-            for x in rx {
-                for y in ry.clone() {
-                    let slot = &mut fill[x * dims[1] + y];
-                    triangles[*slot] = t as u32;
-                    *slot += 1;
-                }
-            }
-        }
         WindingField {
             mesh,
             curtain: Curtain::new(mesh, boundary),
-            lo,
-            cell,
-            dims,
-            offsets,
-            triangles,
+            columns: ColumnIndex::new(mesh),
         }
     }
 
     /// The triangles whose footprint buckets meet the xy box [lo, hi]: a superset of those
     /// that reach into it, sorted.
     pub fn triangles_over(&self, lo: DVec2, hi: DVec2) -> Vec<u32> {
-        let bucket =
-            |p: DVec2, k: usize| (((p[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize).min(self.dims[k] - 1);
-        let mut out = Vec::new();
-        for x in bucket(lo, 0)..=bucket(hi, 0) {
-            for y in bucket(lo, 1)..=bucket(hi, 1) {
-                let b = x * self.dims[1] + y;
-                out.extend_from_slice(&self.triangles[self.offsets[b]..self.offsets[b + 1]]);
-            }
-        }
-        out.sort_unstable();
-        out.dedup();
-        out
+        self.columns.triangles_over(lo, hi)
     }
 
     pub fn winding(&self, p: DVec3) -> f64 {
@@ -493,18 +433,14 @@ impl<'a> WindingField<'a> {
     /// The crossings of the upward ray from `p`: (signed sum, count). On a closed surface the
     /// sum is w(p) and the count's parity is the parity test.
     pub fn crossings_above(&self, p: DVec3) -> (i32, u32) {
-        let q = (p.truncate() - self.lo) / self.cell;
         let (mut sum, mut count) = (0i32, 0u32);
-        if q.x >= 0.0 && q.y >= 0.0 && (q.x as usize) < self.dims[0] && (q.y as usize) < self.dims[1] {
-            let b = q.x as usize * self.dims[1] + q.y as usize;
-            for &t in &self.triangles[self.offsets[b]..self.offsets[b + 1]] {
-                let tri = self.mesh.corners(t as usize).map(|v| v.as_dvec3().to_array());
-                if let Some(hit) = column_hit(&tri, [p.x, p.y])
-                    && hit.z > p.z
-                {
-                    sum += i32::from(hit.sign);
-                    count += 1;
-                }
+        for &t in self.columns.triangles_at(p) {
+            let tri = self.mesh.corners(t as usize).map(|v| v.as_dvec3().to_array());
+            if let Some(hit) = column_hit(&tri, [p.x, p.y])
+                && hit.z > p.z
+            {
+                sum += i32::from(hit.sign);
+                count += 1;
             }
         }
         (sum, count)

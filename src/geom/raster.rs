@@ -640,18 +640,19 @@ pub fn draw_eroded(view: &View, mesh: &Mesh, eroded: &[[bool; 3]], depth: &mut [
 /// The pixel centres triangle t of `mesh` covers, less those whose squares the edges flagged
 /// in `eroded(t)` cross ([`Coverage::Eroded`]), into any [`Pixels`], every vertex projected once.
 fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visit: &mut impl Pixels) {
-    fill_triangles(view, mesh, 0..mesh.triangles.len(), eroded, visit);
+    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
+    fill_triangles(view, (mesh, &projected), 0..mesh.triangles.len(), eroded, visit);
 }
 
-/// [`fill_mesh`] of the triangles `triangles` (indices into the mesh's) alone.
+/// [`fill_mesh`] of the triangles `triangles` (indices into the mesh's) alone, with the mesh's
+/// vertices `projected` by the view.
 fn fill_triangles(
     view: &View,
-    mesh: &Mesh,
+    (mesh, projected): (&Mesh, &[DVec3]),
     triangles: impl Iterator<Item = usize>,
     eroded: impl Fn(usize) -> [bool; 3],
     visit: &mut impl Pixels,
 ) {
-    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
     match view.lens {
         Lens::Orthographic { .. } => {
             // Most triangles of a detailed mesh cover no pixel centre: their corners' places
@@ -750,13 +751,13 @@ pub fn draw_depth(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) {
 }
 
 /// [`draw_depth`] of only the triangles `kept` (indices into the mesh's), as if the mesh held no
-/// others.
-pub fn draw_depth_of(view: &View, mesh: &Mesh, kept: &[u32], depth: &mut Vec<f32>) {
+/// others, with the mesh's vertices `projected` by the view ([`View::project_all`]).
+pub fn draw_depth_of(view: &View, (mesh, projected): (&Mesh, &[DVec3]), kept: &[u32], depth: &mut Vec<f32>) {
     depth.clear();
     depth.resize(view.pixels * view.pixels, f32::INFINITY);
     fill_triangles(
         view,
-        mesh,
+        (mesh, projected),
         kept.iter().map(|&t| t as usize),
         |_| [false; 3],
         &mut Nearest(depth),

@@ -124,9 +124,8 @@ impl Band {
             // The corners one above another share the surface's crossings.
             let (x, z) = (column / (nz + 1), column % (nz + 1));
             let mut corners = (0..=ny)
-                .map(|y| corner_point(grid, (x * (ny + 1) + y) * (nz + 1) + z))
-                .zip(needed[..].iter().skip(x * (ny + 1) * (nz + 1) + z).step_by(nz + 1))
-                .filter_map(|(p, &needed)| needed.then_some(p))
+                .filter(|&y| needed[corner_index(grid, [x, y, z])])
+                .map(|y| corner_point(grid, [x, y, z]))
                 .peekable();
             let crossings = corners.peek().map(|&p| up.crossings(p)).unwrap_or_default();
             corners.all(|p| band::net_above(&crossings, p.y) != 0)
@@ -178,8 +177,9 @@ fn draw_sky(
                 |(image, kept), (v, (out, view))| {
                     match (windows, &small) {
                         (Some(windows), Some(small)) => {
-                            window_triangles(view, drawn, &windows[v], small, kept);
-                            raster::draw_depth_of(view, drawn, kept, image);
+                            let projected = view.project_all(drawn.positions.iter().map(|p| p.as_dvec3()));
+                            window_triangles((drawn, &projected), &windows[v], small, kept);
+                            raster::draw_depth_of(view, (drawn, &projected), kept, image);
                         }
                         _ => draw_depth(view, drawn, image),
                     }
@@ -234,10 +234,10 @@ fn small_triangles(mesh: &Mesh, pixel: f64) -> Vec<bool> {
         .collect()
 }
 
-/// Into `kept`, the triangles of `mesh` that may draw a pixel in a tile of `window`: a small
-/// one (`small`) with a corner in the window grown by a tile, any other with its bounds, and a
-/// pixel around, meeting it.
-fn window_triangles(view: &View, mesh: &Mesh, window: &[bool], small: &[bool], kept: &mut Vec<u32>) {
+/// Into `kept`, the triangles of `mesh` (its vertices `projected` by a sky view) that may draw
+/// a pixel in a tile of the view's `window`: a small one (`small`) with a corner in the window
+/// grown by a tile, any other with its bounds, and a pixel around, meeting it.
+fn window_triangles((mesh, projected): (&Mesh, &[DVec3]), window: &[bool], small: &[bool], kept: &mut Vec<u32>) {
     let tiles = PIXELS / TILE;
     let mut grown = vec![false; tiles * tiles];
     let mut sums = vec![0u32; (tiles + 1) * (tiles + 1)];
@@ -259,7 +259,6 @@ fn window_triangles(view: &View, mesh: &Mesh, window: &[bool], small: &[bool], k
     };
     // Truncating a clamped value: `floor` is a library call on this target.
     let tile = |v: f64| ((v.max(0.0) * (1.0 / TILE as f64)) as usize).min(tiles - 1);
-    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
     let near: Vec<bool> = projected.iter().map(|q| grown[tile(q.y) * tiles + tile(q.x)]).collect();
     kept.clear();
     for (t, (corners, &small)) in mesh.triangles.iter().zip(small).enumerate() {
@@ -293,12 +292,9 @@ fn needed_corners(grid: &Grid, inner: &[bool]) -> Vec<bool> {
         .collect()
 }
 
-/// The world point of grid corner c (z fastest).
-fn corner_point(grid: &Grid, c: usize) -> DVec3 {
-    let [_, ny, nz] = grid.dims;
-    let (ny1, nz1) = (ny + 1, nz + 1);
-    let (x, y, z) = (c / (ny1 * nz1), (c / nz1) % ny1, c % nz1);
-    grid.to_world(DVec3::new(x as f64, y as f64, z as f64))
+/// The world point of the grid corner at `corner` (in voxels).
+fn corner_point(grid: &Grid, corner: [usize; 3]) -> DVec3 {
+    grid.to_world(DVec3::from_array(corner.map(|i| i as f64)))
 }
 
 impl OpenViews {
@@ -878,7 +874,7 @@ impl CornerBricks {
                     .flat_map(|x| span(1).flat_map(move |y| span(2).map(move |z| [x, y, z])))
                     .filter_map(|c| {
                         let index = corner_index(grid, c);
-                        needed[index].then(|| (index, grid.to_world(DVec3::from_array(c.map(|i| i as f64)))))
+                        needed[index].then(|| (index, corner_point(grid, c)))
                     })
                     .unzip()
             })
@@ -1240,8 +1236,10 @@ mod tests {
         assert!(views.band.is_some(), "every inner corner has W″ ≠ 0");
         let needed = needed_corners(&grid, &inner);
         let (mut seen, mut hidden) = (0, 0);
-        for c in (0..needed.len()).filter(|&c| needed[c]) {
-            let p = corner_point(&grid, c);
+        let [nx, ny, nz] = grid.dims;
+        let corners = (0..=nx).flat_map(|x| (0..=ny).flat_map(move |y| (0..=nz).map(move |z| [x, y, z])));
+        for corner in corners.filter(|&c| needed[corner_index(&grid, c)]) {
+            let p = corner_point(&grid, corner);
             for v in 0..views.sky_views {
                 if views.sees(v, p) {
                     seen += 1;

@@ -7,7 +7,7 @@
 //! whose image lies outside the band is hidden from that view.
 
 use crate::geom::camera::View;
-use crate::mesh::{BoundaryEdge, Mesh};
+use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::columns::{ColumnIndex, column_hit};
 use glam::{DVec2, DVec3, Vec3};
 
@@ -96,12 +96,7 @@ impl Wall {
     /// Whether any of `triangles` meets the wall, or may: those whose bounds miss the wall's
     /// are passed over.
     pub fn meets_any(&self, triangles: &[[DVec3; 3]]) -> bool {
-        let (lo, hi) = triangles
-            .iter()
-            .flatten()
-            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-                (lo.min(*p), hi.max(*p))
-            });
+        let (lo, hi) = point_bounds(triangles.iter().flatten().copied());
         let slack = MEETS_SLACK * ((hi - lo).max_element() + (self.b - self.a).abs().max_element()) + 1e-12;
         let (wlo, whi) = (self.a.min(self.b), self.a.max(self.b));
         let misses = lo.x > whi.x + slack
@@ -223,7 +218,7 @@ pub fn unanswered_cells(
 /// Whether the vertical line at `at` meets `triangle` at a height no more than `top`, give or
 /// take `slack`.
 fn below_line_meets(triangle: &[DVec3; 3], at: DVec2, top: f64, slack: f64) -> bool {
-    let swapped = triangle.map(|v| [v.x, v.z, v.y]);
+    let swapped = triangle.map(|v| swap(v).to_array());
     // Near the line, a few nudged lines stand in for the triangle's closed footprint.
     [DVec2::ZERO, DVec2::X, DVec2::NEG_X, DVec2::Y, DVec2::NEG_Y]
         .iter()

@@ -101,6 +101,23 @@ impl View {
         }
     }
 
+    /// For an orthographic view, bounds of [`View::project`] over the box [lo, hi] (to within
+    /// rounding); None for a perspective one.
+    pub fn orthographic_box_image(&self, lo: DVec3, hi: DVec3) -> Option<(DVec3, DVec3)> {
+        let Lens::Orthographic { center, radius } = self.lens else {
+            return None;
+        };
+        let scale = self.pixels as f64 / 2.0 / radius;
+        let (middle, half) = (0.5 * (lo + hi), 0.5 * (hi - lo));
+        let image = self.project_orthographic(middle, center, radius, scale);
+        let reach = DVec3::new(
+            half.dot(self.right.abs()) * scale,
+            half.dot(self.up.abs()) * scale,
+            half.dot(self.dir.abs()),
+        );
+        Some((image - reach, image + reach))
+    }
+
     #[inline(always)]
     fn project_orthographic(&self, p: DVec3, center: DVec3, radius: f64, scale: f64) -> DVec3 {
         let d = p - center;

@@ -1,12 +1,14 @@
 //! What several stages share and that imports nothing of the pipeline: cameras and their
 //! projections ([`camera`]), the rasterizer that draws meshes through them ([`raster`], with its
-//! GPU twin), which triangles lie near a point ([`proximity`]), and the openings of a mesh
-//! narrower than a width, closed ([`openings`]), items grouped by a dense key ([`buckets`]), and
-//! the conversions between pixel or cell indices and floats, the comparisons and the bit counts
-//! that their inner loops make.
+//! GPU twin), which triangles lie near a point ([`proximity`]), the openings of a mesh narrower
+//! than a width, closed ([`openings`]), items grouped by a dense key ([`buckets`]), a mesh cut
+//! into meshlets that a view keeps or skips whole ([`meshlets`]), and the conversions between
+//! pixel or cell indices and floats, the comparisons and the bit counts that their inner loops
+//! make.
 
 pub mod buckets;
 pub mod camera;
+pub mod meshlets;
 pub mod openings;
 pub mod proximity;
 pub mod raster;

@@ -750,18 +750,15 @@ pub fn draw_depth(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) {
     fill_mesh(view, mesh, |_| [false; 3], &mut Nearest(depth));
 }
 
-/// [`draw_depth`] of only the triangles `kept` (indices into the mesh's), as if the mesh held no
-/// others, with the mesh's vertices `projected` by the view ([`View::project_all`]).
-pub fn draw_depth_of(view: &View, (mesh, projected): (&Mesh, &[DVec3]), kept: &[u32], depth: &mut Vec<f32>) {
-    depth.clear();
-    depth.resize(view.pixels * view.pixels, f32::INFINITY);
-    fill_triangles(
-        view,
-        (mesh, projected),
-        kept.iter().map(|&t| t as usize),
-        |_| [false; 3],
-        &mut Nearest(depth),
-    );
+/// Draws the triangles `kept` (indices into the mesh's) over `depth`, a depth image of `view`,
+/// with the mesh's vertices `projected` by the view ([`View::project_all`]).
+pub fn draw_depth_of(
+    view: &View,
+    (mesh, projected): (&Mesh, &[DVec3]),
+    kept: impl Iterator<Item = usize>,
+    depth: &mut [f32],
+) {
+    fill_triangles(view, (mesh, projected), kept, |_| [false; 3], &mut Nearest(depth));
 }
 
 /// [`draw_depth`] for a perspective view that many surfaces lie across, one behind another (a

@@ -25,6 +25,7 @@ pub mod gpu;
 
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
+use crate::geom::meshlets::{Meshlet, meshlets};
 use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
 use crate::geom::with_avx2;
@@ -32,7 +33,7 @@ use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
 use crate::voxel::winding::WindingField;
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::{Mutex, PoisonError};
@@ -138,13 +139,14 @@ impl Band {
     }
 }
 
-/// Draws the sky views (`pixel` wide pixels) into `out`, their images one after another: the
-/// mesh's triangles (`drawn`, on `gpu` when given) and those along a crack eroded. With
-/// `windows`, each image holds only its window, and is 0 (hidden to every later test) outside it.
+/// Draws the sky views into `out`, their images one after another: the mesh's triangles
+/// (`drawn`, on `gpu` when given) and those along a crack eroded. With `windows`, each image
+/// holds only its window (on the CPU, drawn from `meshlets`, `drawn`'s), and is 0 (hidden to
+/// every later test) outside it.
 fn draw_sky(
-    (sky, pixel): (&[View], f64),
+    sky: &[View],
     (drawn, split): (&Mesh, &CrackSplit),
-    windows: Option<&[Vec<bool>]>,
+    (windows, meshlets): (Option<&[Vec<bool>]>, &[Meshlet]),
     gpu: Option<&Gpu>,
     out: &mut [f32],
 ) -> Result<(), GpuError> {
@@ -170,23 +172,16 @@ fn draw_sky(
             out.zip(images)
                 .for_each(|((v, (out, view)), mut image)| finish(v, view, &mut image, out));
         }
-        None => {
-            let small = windows.map(|_| small_triangles(drawn, pixel));
-            out.for_each_init(
-                || (Vec::new(), Vec::new()),
-                |(image, kept), (v, (out, view))| {
-                    match (windows, &small) {
-                        (Some(windows), Some(small)) => {
-                            let projected = view.project_all(drawn.positions.iter().map(|p| p.as_dvec3()));
-                            window_triangles((drawn, &projected), &windows[v], small, kept);
-                            raster::draw_depth_of(view, (drawn, &projected), kept, image);
-                        }
-                        _ => draw_depth(view, drawn, image),
-                    }
-                    finish(v, view, image, out);
-                },
-            )
-        }
+        None => out.for_each_init(
+            || (Vec::new(), Vec::new()),
+            |(image, kept), (v, (out, view))| {
+                match windows {
+                    Some(windows) => draw_in_window(view, meshlets, &windows[v], (image, kept)),
+                    None => draw_depth(view, drawn, image),
+                }
+                finish(v, view, image, out);
+            },
+        ),
     }
     Ok(())
 }
@@ -222,58 +217,85 @@ impl RectangleCells {
     }
 }
 
-/// Triangles no edge of which is longer than 6 pixels (`pixel` wide) of the sky views.
-fn small_triangles(mesh: &Mesh, pixel: f64) -> Vec<bool> {
-    let most = 6.0 * pixel;
-    (0..mesh.triangles.len())
-        .into_par_iter()
-        .map(|t| {
-            let c = mesh.corners(t).map(|p| p.as_dvec3());
-            c[0].distance(c[1]).max(c[1].distance(c[2])).max(c[2].distance(c[0])) <= most
-        })
-        .collect()
+/// A sky view's depth image, in `image`, drawn right in the tiles of its `window`: of the
+/// meshlets whose bounds meet the window grown by a pixel, the triangles whose bounds do.
+/// Elsewhere it may miss what lies there.
+fn draw_in_window(view: &View, meshlets: &[Meshlet], window: &[bool], (image, kept): (&mut Vec<f32>, &mut Vec<u32>)) {
+    image.clear();
+    image.resize(PIXELS * PIXELS, f32::INFINITY);
+    let window = WindowTiles::new(window);
+    for meshlet in meshlets {
+        // Sky views are orthographic; any other view's meshlets are tested triangle by triangle.
+        let meets = view
+            .orthographic_box_image(meshlet.lo, meshlet.hi)
+            .map_or(Meets::Part, |(lo, hi)| window.meets(lo, hi));
+        if meets == Meets::None {
+            continue;
+        }
+        let projected = view.project_all(meshlet.mesh.positions.iter().map(|p| p.as_dvec3()));
+        let triangles = &meshlet.mesh.triangles;
+        if meets == Meets::Whole {
+            raster::draw_depth_of(view, (&meshlet.mesh, &projected), 0..triangles.len(), image);
+            continue;
+        }
+        kept.clear();
+        kept.extend((0..triangles.len() as u32).filter(|&t| {
+            let (lo, hi) = point_bounds(triangles[t as usize].map(|i| projected[i as usize]));
+            window.meets(lo, hi) != Meets::None
+        }));
+        raster::draw_depth_of(
+            view,
+            (&meshlet.mesh, &projected),
+            kept.iter().map(|&t| t as usize),
+            image,
+        );
+    }
 }
 
-/// Into `kept`, the triangles of `mesh` (its vertices `projected` by a sky view) that may draw
-/// a pixel in a tile of the view's `window`: a small one (`small`) with a corner in the window
-/// grown by a tile, any other with its bounds, and a pixel around, meeting it.
-fn window_triangles((mesh, projected): (&Mesh, &[DVec3]), window: &[bool], small: &[bool], kept: &mut Vec<u32>) {
-    let tiles = PIXELS / TILE;
-    let mut grown = vec![false; tiles * tiles];
-    let mut sums = vec![0u32; (tiles + 1) * (tiles + 1)];
-    for y in 0..tiles {
-        for x in 0..tiles {
-            if window[y * tiles + x] {
-                for gy in y.saturating_sub(1)..(y + 2).min(tiles) {
-                    grown[gy * tiles + x.saturating_sub(1)..gy * tiles + (x + 2).min(tiles)].fill(true);
-                }
+/// How much of a window the tiles that a rectangle of the image may fall in hold.
+#[derive(Clone, Copy, PartialEq)]
+enum Meets {
+    None,
+    Part,
+    Whole,
+}
+
+/// A sky view's window ([`band::window`]) as counts of its tiles over rectangles of tiles.
+struct WindowTiles {
+    /// Over the tiles (x fastest) with a row and column of zeros before them, how many window
+    /// tiles lie before and up to each.
+    sums: Vec<u32>,
+}
+
+impl WindowTiles {
+    const ACROSS: usize = PIXELS / TILE;
+
+    fn new(window: &[bool]) -> WindowTiles {
+        let (n, row) = (Self::ACROSS, Self::ACROSS + 1);
+        let mut sums = vec![0u32; row * row];
+        for y in 0..n {
+            for x in 0..n {
+                sums[(y + 1) * row + x + 1] =
+                    u32::from(window[y * n + x]) + sums[y * row + x + 1] + sums[(y + 1) * row + x] - sums[y * row + x];
             }
-            sums[(y + 1) * (tiles + 1) + x + 1] =
-                u32::from(window[y * tiles + x]) + sums[y * (tiles + 1) + x + 1] + sums[(y + 1) * (tiles + 1) + x]
-                    - sums[y * (tiles + 1) + x];
         }
+        WindowTiles { sums }
     }
-    let any = |[x0, y0]: [usize; 2], [x1, y1]: [usize; 2]| {
-        sums[y1 * (tiles + 1) + x1] + sums[y0 * (tiles + 1) + x0]
-            > sums[y0 * (tiles + 1) + x1] + sums[y1 * (tiles + 1) + x0]
-    };
-    // Truncating a clamped value: `floor` is a library call on this target.
-    let tile = |v: f64| ((v.max(0.0) * (1.0 / TILE as f64)) as usize).min(tiles - 1);
-    let near: Vec<bool> = projected.iter().map(|q| grown[tile(q.y) * tiles + tile(q.x)]).collect();
-    kept.clear();
-    for (t, (corners, &small)) in mesh.triangles.iter().zip(small).enumerate() {
-        let keep = if small {
-            corners.iter().any(|&i| near[i as usize])
-        } else {
-            let c = corners.map(|i| projected[i as usize]);
-            let (lo, hi) = (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]));
-            any(
-                [tile(lo.x - 1.0), tile(lo.y - 1.0)],
-                [tile(hi.x + 1.0) + 1, tile(hi.y + 1.0) + 1],
-            )
-        };
-        if keep {
-            kept.push(t as u32);
+
+    /// How much of the window holds the tiles that the image points from `lo` to `hi` (in
+    /// pixels), grown by a pixel against rounding, may fall in.
+    fn meets(&self, lo: DVec3, hi: DVec3) -> Meets {
+        let row = Self::ACROSS + 1;
+        // Truncating a clamped value: `floor` is a library call on this target.
+        let tile = |v: f64| ((v.max(0.0) * (1.0 / TILE as f64)) as usize).min(Self::ACROSS - 1);
+        let [x0, y0] = [tile(lo.x - 1.0), tile(lo.y - 1.0)];
+        let [x1, y1] = [tile(hi.x + 1.0) + 1, tile(hi.y + 1.0) + 1];
+        let s = &self.sums;
+        let held = s[y1 * row + x1] + s[y0 * row + x0] - s[y0 * row + x1] - s[y1 * row + x0];
+        match held {
+            0 => Meets::None,
+            _ if held as usize == (x1 - x0) * (y1 - y0) => Meets::Whole,
+            _ => Meets::Part,
         }
     }
 }
@@ -345,25 +367,31 @@ impl OpenViews {
         let mut depths = depth_memory(views.len() * PIXELS * PIXELS);
         let (sky_depths, eye_depths) = depths.split_at_mut(sky_views * PIXELS * PIXELS);
         let (sky, eyes) = views.split_at(sky_views);
-        let drawn = split.uncracked.as_ref().unwrap_or(mesh);
         // Triangles along a crack are drawn eroded on the CPU, over the rest.
-        let lowest = lowest_corners(mesh);
+        let drawn = split.uncracked.as_ref().unwrap_or(mesh);
         let banded = Band::new(mesh, boundary, sky, (grid, inner));
+        // What the CPU draws in part, as meshlets: the cameras in the openings all the mesh's
+        // triangles (the drawn ones' first, then those along a crack), the sky views in windows
+        // the drawn ones'.
+        let mut parts = Vec::new();
+        if !eyes.is_empty() || (banded.is_some() && gpu.is_none()) {
+            parts = meshlets(drawn);
+        }
+        let drawn_parts = parts.len();
+        if !eyes.is_empty() && split.uncracked.is_some() {
+            parts.extend(meshlets(&split.soup));
+        }
         // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
         // openings meanwhile.
         let (sky_drawn, ()) = rayon::join(
             || {
                 let windows = banded.as_ref().map(|(_, windows)| windows.as_slice());
-                draw_sky((sky, pixel), (drawn, &split), windows, gpu, sky_depths)
+                draw_sky(sky, (drawn, &split), (windows, &parts[..drawn_parts]), gpu, sky_depths)
             },
             || {
                 let eyes = eye_depths.par_chunks_mut(PIXELS * PIXELS).zip(eyes).zip(&horizons);
                 eyes.for_each_init(Vec::new, |image, ((out, view), &horizon)| {
-                    draw_depth_nearest_first(
-                        view,
-                        &may_hide_counted(mesh, &lowest, (center, radius), view, horizon),
-                        image,
-                    );
+                    draw_depth_nearest_first(view, &may_hide_counted(&parts, (center, radius), view, horizon), image);
                     farthest_nearby(image, PIXELS, out);
                 });
             },
@@ -791,16 +819,9 @@ impl NearestDepth {
     }
 }
 
-/// Each triangle's lowest corner's height, as [`may_hide_counted`] takes them.
-fn lowest_corners(mesh: &Mesh) -> Vec<f32> {
-    (0..mesh.triangles.len())
-        .map(|t| mesh.corners(t).iter().map(|p| p.y).fold(f32::INFINITY, f32::min))
-        .collect()
-}
-
-/// The triangles of `mesh` that may hide from `view`, a camera in an opening, a point it counts:
-/// one no higher than `horizon` (the opening's highest point, at least the camera's own height).
-/// `lowest` is each triangle's lowest corner, `sphere` the mesh's bounding sphere.
+/// The triangles of `meshlets` that may hide from `view`, a camera in an opening, a point it
+/// counts: one no higher than `horizon` (the opening's highest point, at least the camera's own
+/// height). `sphere` is the mesh's bounding sphere.
 ///
 /// A triangle hides what lies behind it along a ray, and the 3×3 farthest depths carry its depth
 /// to rays up to 1.5 pixels away (a neighbour's centre, and a point anywhere in the pixel).
@@ -811,37 +832,52 @@ fn lowest_corners(mesh: &Mesh) -> Vec<f32> {
 /// pixels' spread and twice the tolerance leave room for rounding.
 ///
 /// Triangles wholly beyond a side of the view's frustum are left out too: they draw nothing.
-fn may_hide_counted(mesh: &Mesh, lowest: &[f32], sphere: (DVec3, f64), view: &View, horizon: f64) -> Mesh {
-    let beyond: Vec<u8> = mesh.positions.iter().map(|p| view.beyond_sides(p.as_dvec3())).collect();
+/// Both tests go by meshlet first: a side that all its bounds' corners lie beyond holds all
+/// its points, as the region beyond a side is convex, and none of its triangles clears less
+/// than its lowest point.
+fn may_hide_counted(meshlets: &[Meshlet], sphere: (DVec3, f64), view: &View, horizon: f64) -> Mesh {
     let (rise, spread) = view.ray_rise(2.0);
     let clear = horizon + 2.0 * view.depth_tolerance() * rise;
     // Depth is linear with a unit gradient: no point of the mesh lies deeper.
     let deepest = view.project(sphere.0).z + sphere.1;
-    let may_hide = |t: usize| {
-        let low = f64::from(lowest[t]);
+    let clears_every_depth = clear + deepest.max(0.0) * spread;
+    let may_hide = |corners: [Vec3; 3]| {
+        let low = f64::from(corners.iter().map(|p| p.y).fold(f32::INFINITY, f32::min));
         low <= clear
-            || low <= clear + deepest.max(0.0) * spread && {
-                let farthest = mesh
-                    .corners(t)
-                    .iter()
-                    .map(|p| view.project(p.as_dvec3()).z)
-                    .fold(0.0, f64::max);
+            || low <= clears_every_depth && {
+                let farthest = corners.iter().map(|p| view.project(p.as_dvec3()).z).fold(0.0, f64::max);
                 low <= clear + farthest * spread
             }
     };
-    Mesh {
-        positions: mesh.positions.clone(),
-        triangles: (0..mesh.triangles.len())
-            .filter(|&t| {
-                mesh.triangles[t]
-                    .iter()
-                    .fold(0xf, |sides, &v| sides & beyond[v as usize])
-                    == 0
-                    && may_hide(t)
-            })
-            .map(|t| mesh.triangles[t])
-            .collect(),
+    let mut kept = Mesh::default();
+    let mut beyond = Vec::new();
+    for meshlet in meshlets {
+        let beyond_a_side = meshlet
+            .box_corners()
+            .iter()
+            .fold(0xf, |sides, &c| sides & view.beyond_sides(c))
+            != 0;
+        if meshlet.lo.y > clears_every_depth || beyond_a_side {
+            continue;
+        }
+        beyond.clear();
+        beyond.extend(meshlet.mesh.positions.iter().map(|p| view.beyond_sides(p.as_dvec3())));
+        let first = kept.positions.len() as u32;
+        let before = kept.triangles.len();
+        kept.triangles.extend(
+            (0..meshlet.mesh.triangles.len())
+                .filter(|&t| {
+                    let corners = meshlet.mesh.triangles[t];
+                    corners.iter().fold(0xf, |sides, &v| sides & beyond[v as usize]) == 0
+                        && may_hide(meshlet.mesh.corners(t))
+                })
+                .map(|t| meshlet.mesh.triangles[t].map(|i| first + i)),
+        );
+        if kept.triangles.len() > before {
+            kept.positions.extend(&meshlet.mesh.positions);
+        }
     }
+    kept
 }
 
 /// The index of grid corner [x, y, z] (z fastest) among the grid's corners.
@@ -1401,11 +1437,34 @@ mod tests {
             let q = q.map(|i| room + i as u32);
             mesh.triangles.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
         }
-        let lowest = lowest_corners(&mesh);
+        let parts = meshlets(&mesh);
+        // A meshlet a triangle: only the triangles' own tests leave any out.
+        let singles: Vec<Meshlet> = (0..mesh.triangles.len())
+            .map(|t| {
+                let (lo, hi) = point_bounds(mesh.corners(t).map(|p| p.as_dvec3()));
+                Meshlet {
+                    mesh: Mesh {
+                        positions: mesh.corners(t).to_vec(),
+                        triangles: vec![[0, 1, 2]],
+                    },
+                    lo,
+                    hi,
+                }
+            })
+            .collect();
+        let corner_sets = |mesh: &Mesh| {
+            let mut sets: Vec<_> = (0..mesh.triangles.len())
+                .map(|t| mesh.corners(t).map(|p| p.to_array().map(f32::to_bits)))
+                .collect();
+            sets.sort_unstable();
+            sets
+        };
         let (eye, horizon) = (DVec3::ZERO, 0.0);
         let (mut left_out, mut changed) = (0, 0);
         for view in View::cube_map(eye, PIXELS, 1e-4) {
-            let kept = may_hide_counted(&mesh, &lowest, mesh.bounding_sphere(), &view, horizon);
+            let kept = may_hide_counted(&parts, mesh.bounding_sphere(), &view, horizon);
+            let one_by_one = may_hide_counted(&singles, mesh.bounding_sphere(), &view, horizon);
+            assert_eq!(corner_sets(&kept), corner_sets(&one_by_one), "view {:?}", view.dir);
             left_out += mesh.triangles.len() - kept.triangles.len();
             let farthest = |mesh: &Mesh| {
                 let mut out = vec![0f32; PIXELS * PIXELS];
@@ -1436,6 +1495,42 @@ mod tests {
             left_out > 5_000 && changed > 1_000,
             "{left_out} triangles left out, {changed} pixels changed"
         );
+    }
+
+    #[test]
+    fn a_view_drawn_in_its_window_is_drawn_whole_there() {
+        // Small triangles over a sphere's worth of space and a few long ones across it.
+        let mut rng = fastrand::Rng::with_seed(5);
+        let mut mesh = Mesh::default();
+        for k in 0..4000u32 {
+            let size = if k % 200 == 0 { 1.5 } else { 0.03 };
+            let centre = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0;
+            mesh.positions
+                .extend((0..3).map(|_| centre + (Vec3::new(rng.f32(), rng.f32(), rng.f32()) - 0.5) * size));
+            mesh.triangles.push([3 * k, 3 * k + 1, 3 * k + 2]);
+        }
+        let parts = meshlets(&mesh);
+        let tiles = PIXELS / TILE;
+        // A window of scattered tiles and a solid block of them.
+        let window: Vec<bool> = (0..tiles * tiles)
+            .map(|k| rng.f32() < 0.1 || (k / tiles < 8 && k % tiles < 8))
+            .collect();
+        let (center, radius) = mesh.bounding_sphere();
+        let (mut image, mut kept) = (Vec::new(), Vec::new());
+        let mut drawn = 0;
+        for dir in fibonacci_sphere(12) {
+            let view = View::new(dir, center, radius, PIXELS);
+            draw_in_window(&view, &parts, &window, (&mut image, &mut kept));
+            let whole = depth_image(&view, &mesh);
+            for (i, (&ours, &all)) in image.iter().zip(&whole).enumerate() {
+                let (x, y) = (i % PIXELS, i / PIXELS);
+                if window[(y / TILE) * tiles + x / TILE] {
+                    assert_eq!(ours.to_bits(), all.to_bits(), "view {dir}, pixel {i}");
+                    drawn += usize::from(all.is_finite());
+                }
+            }
+        }
+        assert!(drawn > 10_000, "{drawn} pixels drawn in the windows");
     }
 
     #[test]

@@ -161,13 +161,20 @@ impl ColumnIndex {
             (extent.x / cell).ceil() as usize + 1,
             (extent.y / cell).ceil() as usize + 1,
         ];
-        let pairs = (0..mesh.triangles.len()).flat_map(|t| {
-            let tri = mesh.corners(t).map(|v| v.as_dvec3().truncate());
-            let a = ((tri[0].min(tri[1]).min(tri[2]) - lo) / cell).floor();
-            let b = ((tri[0].max(tri[1]).max(tri[2]) - lo) / cell).floor();
-            let clamp = |v: f64, k: usize| (v.max(0.0) as usize).min(dims[k] - 1);
-            let ys = clamp(a.y, 1)..=clamp(b.y, 1);
-            (clamp(a.x, 0)..=clamp(b.x, 0)).flat_map(move |x| ys.clone().map(move |y| (x * dims[1] + y, t as u32)))
+        // Each triangle's buckets, first and past the last along x and y, found in parallel.
+        // Truncating a clamped value floors it: `floor` is a library call on this target.
+        let spans: Vec<[u32; 4]> = (0..mesh.triangles.len())
+            .into_par_iter()
+            .map(|t| {
+                let tri = mesh.corners(t).map(|v| v.as_dvec3().truncate());
+                let a = (tri[0].min(tri[1]).min(tri[2]) - lo) / cell;
+                let b = (tri[0].max(tri[1]).max(tri[2]) - lo) / cell;
+                let clamp = |v: f64, k: usize| (v.max(0.0) as usize).min(dims[k] - 1) as u32;
+                [clamp(a.x, 0), clamp(a.y, 1), clamp(b.x, 0) + 1, clamp(b.y, 1) + 1]
+            })
+            .collect();
+        let pairs = spans.iter().zip(0u32..).flat_map(|(&[x0, y0, x1, y1], t)| {
+            (x0..x1).flat_map(move |x| (y0..y1).map(move |y| (x as usize * dims[1] + y as usize, t)))
         });
         ColumnIndex {
             lo,

@@ -25,6 +25,7 @@ pub mod gpu;
 
 use super::{Panel, rectangle};
 use crate::geom::camera::{View, fibonacci_sphere};
+use crate::geom::grid_counts::GridCounts;
 use crate::geom::meshlets::{Meshlet, meshlets};
 use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
@@ -261,40 +262,28 @@ enum Meets {
 }
 
 /// A sky view's window ([`band::window`]) as counts of its tiles over rectangles of tiles.
-struct WindowTiles {
-    /// Over the tiles (x fastest) with a row and column of zeros before them, how many window
-    /// tiles lie before and up to each.
-    sums: Vec<u32>,
-}
+struct WindowTiles(GridCounts);
 
 impl WindowTiles {
     const ACROSS: usize = PIXELS / TILE;
 
     fn new(window: &[bool]) -> WindowTiles {
-        let (n, row) = (Self::ACROSS, Self::ACROSS + 1);
-        let mut sums = vec![0u32; row * row];
-        for y in 0..n {
-            for x in 0..n {
-                sums[(y + 1) * row + x + 1] =
-                    u32::from(window[y * n + x]) + sums[y * row + x + 1] + sums[(y + 1) * row + x] - sums[y * row + x];
-            }
-        }
-        WindowTiles { sums }
+        WindowTiles(GridCounts::new(window, Self::ACROSS, Self::ACROSS))
     }
 
     /// How much of the window holds the tiles that the image points from `lo` to `hi` (in
     /// pixels), grown by a pixel against rounding, may fall in.
     fn meets(&self, lo: DVec3, hi: DVec3) -> Meets {
-        let row = Self::ACROSS + 1;
         // Truncating a clamped value: `floor` is a library call on this target.
         let tile = |v: f64| ((v.max(0.0) * (1.0 / TILE as f64)) as usize).min(Self::ACROSS - 1);
-        let [x0, y0] = [tile(lo.x - 1.0), tile(lo.y - 1.0)];
-        let [x1, y1] = [tile(hi.x + 1.0) + 1, tile(hi.y + 1.0) + 1];
-        let s = &self.sums;
-        let held = s[y1 * row + x1] + s[y0 * row + x0] - s[y0 * row + x1] - s[y1 * row + x0];
-        match held {
+        let (xs, ys) = (
+            tile(lo.x - 1.0)..tile(hi.x + 1.0) + 1,
+            tile(lo.y - 1.0)..tile(hi.y + 1.0) + 1,
+        );
+        let tiles = xs.len() * ys.len();
+        match self.0.count(ys, xs) as usize {
             0 => Meets::None,
-            _ if held as usize == (x1 - x0) * (y1 - y0) => Meets::Whole,
+            held if held == tiles => Meets::Whole,
             _ => Meets::Part,
         }
     }

@@ -17,6 +17,7 @@
 use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape, WorldBox};
 use crate::geom::buckets::Buckets;
+use crate::geom::grid_counts::GridCounts;
 use crate::geom::{ceil_index, floor_index, greater, index_to_f64, lesser};
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
@@ -185,10 +186,8 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
 /// hundredth of a cell: all those where a classification that holds only within the boxes may
 /// hold ([`Solid::Points`]).
 struct Reach {
-    nv: usize,
-    /// Over the cells (the second axis fastest) with a row and column of zeros before them,
-    /// how many cells are reached before and up to each.
-    counts: Vec<u32>,
+    /// How many cells are reached over rectangles of cells.
+    counts: GridCounts,
 }
 
 impl Reach {
@@ -215,21 +214,14 @@ impl Reach {
                 }
             }
         }
-        let mut counts = vec![0u32; (nu + 1) * (nv + 1)];
-        for u in 0..nu {
-            for v in 0..nv {
-                counts[(u + 1) * (nv + 1) + v + 1] =
-                    u32::from(reached[u * nv + v]) + counts[u * (nv + 1) + v + 1] + counts[(u + 1) * (nv + 1) + v]
-                        - counts[u * (nv + 1) + v];
-            }
+        Reach {
+            counts: GridCounts::new(&reached, nu, nv),
         }
-        Reach { nv, counts }
     }
 
     /// Whether any of the cells `us` × `vs` is reached.
     fn any(&self, us: &std::ops::Range<usize>, vs: &std::ops::Range<usize>) -> bool {
-        let at = |u: usize, v: usize| self.counts[u * (self.nv + 1) + v];
-        at(us.end, vs.end) + at(us.start, vs.start) > at(us.start, vs.end) + at(us.end, vs.start)
+        self.counts.count(us.clone(), vs.clone()) > 0
     }
 
     fn holds(&self, u: usize, v: usize) -> bool {

@@ -162,15 +162,13 @@ impl ColumnIndex {
             (extent.y / cell).ceil() as usize + 1,
         ];
         // Each triangle's buckets, first and past the last along x and y, found in parallel.
-        // Truncating a clamped value floors it: `floor` is a library call on this target.
         let spans: Vec<[u32; 4]> = (0..mesh.triangles.len())
             .into_par_iter()
             .map(|t| {
                 let tri = mesh.corners(t).map(|v| v.as_dvec3().truncate());
-                let a = (tri[0].min(tri[1]).min(tri[2]) - lo) / cell;
-                let b = (tri[0].max(tri[1]).max(tri[2]) - lo) / cell;
-                let clamp = |v: f64, k: usize| (v.max(0.0) as usize).min(dims[k] - 1) as u32;
-                [clamp(a.x, 0), clamp(a.y, 1), clamp(b.x, 0) + 1, clamp(b.y, 1) + 1]
+                let (a, b) = (tri[0].min(tri[1]).min(tri[2]), tri[0].max(tri[1]).max(tri[2]));
+                let along = |p: DVec2, k: usize| bucket_along((p[k] - lo[k]) / cell, dims[k]) as u32;
+                [along(a, 0), along(a, 1), along(b, 0) + 1, along(b, 1) + 1]
             })
             .collect();
         let pairs = spans.iter().zip(0u32..).flat_map(|(&[x0, y0, x1, y1], t)| {
@@ -198,8 +196,7 @@ impl ColumnIndex {
     /// The triangles whose footprint buckets meet the xy box [lo, hi]: a superset of those
     /// that reach into it, sorted.
     pub fn triangles_over(&self, lo: DVec2, hi: DVec2) -> Vec<u32> {
-        let bucket =
-            |p: DVec2, k: usize| (((p[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize).min(self.dims[k] - 1);
+        let bucket = |p: DVec2, k: usize| bucket_along((p[k] - self.lo[k]) / self.cell, self.dims[k]);
         let mut out = Vec::new();
         for x in bucket(lo, 0)..=bucket(hi, 0) {
             for y in bucket(lo, 1)..=bucket(hi, 1) {
@@ -210,4 +207,11 @@ impl ColumnIndex {
         out.dedup();
         out
     }
+}
+
+/// The bucket, of `n` along an axis, that `cells` (a coordinate in buckets from the first)
+/// falls in, the first or last for one beyond them. Truncating a clamped value floors it:
+/// `floor` is a library call on this target.
+fn bucket_along(cells: f64, n: usize) -> usize {
+    (cells.max(0.0) as usize).min(n - 1)
 }

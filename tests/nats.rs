@@ -124,6 +124,8 @@ impl Nats {
             .status()
             .unwrap();
         self.child.wait().unwrap();
+        // Away for a moment: the nodes' calls meanwhile wait or fail, and no job may be lost.
+        std::thread::sleep(Duration::from_secs(1));
         let (port, dir, secrets) = (
             self.port,
             std::mem::take(&mut self.dir),
@@ -319,22 +321,21 @@ fn nats_restarted_mid_run_loses_no_job() {
     let Some(nats) = Nats::start("restart") else { return };
     let api = nats.api(&[]);
     let _workers = (nats.worker(&[ACK_WAIT]), nats.worker(&[ACK_WAIT]));
-    let mut jobs: Vec<String> = (40..46)
-        .map(|i| {
-            submit(&api.base, "", &small_mesh(i))["job"]
-                .as_str()
-                .unwrap()
-                .to_string()
-        })
-        .collect();
     let slow = submit(&api.base, SLOW, &slow_mesh());
-    jobs.push(slow["job"].as_str().unwrap().to_string());
-    wait_running(&api.base, jobs.last().unwrap());
+    let mut jobs = vec![slow["job"].as_str().unwrap().to_string()];
+    wait_running(&api.base, &jobs[0]);
+    // Small jobs queued behind it: the other worker is working through them as the server goes.
+    jobs.extend((40..56).map(|i| {
+        submit(&api.base, "", &small_mesh(i))["job"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    }));
 
     let nats = nats.restart();
     // Accepted while the server was away, or just after.
     jobs.push(
-        submit(&api.base, "", &small_mesh(47))["job"]
+        submit(&api.base, "", &small_mesh(57))["job"]
             .as_str()
             .unwrap()
             .to_string(),

@@ -59,8 +59,12 @@ pub enum LevelError {
     BadTransform { index: usize, why: String },
     #[error("mesh {mesh}: {message}")]
     BadMesh { mesh: String, message: String },
+    /// A cached result that cannot be read as an occluder.
     #[error("cache: {0}")]
     Cache(String),
+    /// The store did not answer.
+    #[error(transparent)]
+    Store(#[from] StoreError),
     #[error(transparent)]
     Cook(#[from] crate::cook::CookError),
 }
@@ -454,10 +458,6 @@ fn key_meshes(
         .collect()
 }
 
-fn cache_error(e: StoreError) -> LevelError {
-    LevelError::Cache(e.to_string())
-}
-
 /// The occluders `store` has already, and the meshes to cook: from the level's own source, or
 /// from the upload kept under a key that has no result yet.
 async fn look_up(
@@ -469,14 +469,14 @@ async fn look_up(
     let mut occluders = HashMap::new();
     let mut misses = Vec::new();
     for (m, key, source) in keyed {
-        if let Some(bytes) = store.result_glb(&key).await.map_err(cache_error)? {
-            let report = store.result_report(&key).await.map_err(cache_error)?;
+        if let Some(bytes) = store.result_glb(&key).await? {
+            let report = store.result_report(&key).await?;
             occluders.insert(m, occluder_from_glb(&key, &bytes, report.as_deref())?);
             continue;
         }
         let source = match source {
             Some(source) => source,
-            None => match store.input(&key).await.map_err(cache_error)? {
+            None => match store.input(&key).await? {
                 Some(input) => {
                     let (mesh, stats) = input.load(limits).map_err(|e| LevelError::BadMesh {
                         mesh: key.clone(),
@@ -505,13 +505,13 @@ async fn file_result(
 ) -> Result<(Occluder, u64), LevelError> {
     let glb = cooked.glb();
     let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
-    store.put_input(key, input).await.map_err(cache_error)?;
+    store.put_input(key, input).await?;
     let meta = ResultMeta {
         job: "level".into(),
         bytes: (glb.len() + report.len() + input.encode().len()) as u64,
         created_ms: now_ms(),
     };
-    store.put_result(key, &glb, &report, &meta).await.map_err(cache_error)?;
+    store.put_result(key, &glb, &report, &meta).await?;
     Ok((occluder_from_glb(key, &glb, Some(&report))?, meta.bytes))
 }
 

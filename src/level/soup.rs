@@ -15,7 +15,7 @@
 
 use super::batch::{Placed, cluster};
 use super::free_space::{FreeSpace, Pose};
-use super::{Baked, BatchInfo, Level, LevelError, LevelReport, cache_error};
+use super::{Baked, BatchInfo, Level, LevelError, LevelReport};
 use crate::config::{LevelSettings, Settings};
 use crate::geom::camera::View;
 use crate::geom::raster::rasterize;
@@ -286,11 +286,10 @@ pub async fn bake_soup(level: &Level, settings: &Settings, store: &dyn Store, wh
     timings
         .0
         .push(("read+key".into(), started.elapsed().as_secs_f64() * 1e3));
-    let cached = match store.result_glb(&key).await.map_err(cache_error)? {
+    let cached = match store.result_glb(&key).await? {
         Some(glb) => store
             .result_report(&key)
-            .await
-            .map_err(cache_error)?
+            .await?
             .and_then(|json| serde_json::from_slice::<SoupRecord>(&json).ok())
             .map(|record| (glb, record)),
         None => None,
@@ -315,7 +314,7 @@ pub async fn bake_soup(level: &Level, settings: &Settings, store: &dyn Store, wh
                 bytes: (glb.len() + json.len()) as u64,
                 created_ms: now_ms(),
             };
-            store.put_result(&key, &glb, &json, &meta).await.map_err(cache_error)?;
+            store.put_result(&key, &glb, &json, &meta).await?;
             (glb, record, vec![(key, meta.bytes)])
         }
     };

@@ -15,7 +15,7 @@ pub mod tls;
 use crate::config::Settings;
 use crate::cook::{CookError, cook_with_progress};
 use crate::store::job::{self, Job, JobError, JobKind, JobState, now_ms};
-use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreResult};
+use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreError, StoreResult};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -131,7 +131,7 @@ pub enum SubmitError {
     #[error("token `{owner}` has {queued} jobs queued or running (service.token_max_queued)")]
     OwnerQueueFull { owner: String, queued: usize },
     #[error(transparent)]
-    Store(#[from] store::StoreError),
+    Store(#[from] StoreError),
 }
 
 impl Service {
@@ -452,39 +452,43 @@ impl Service {
                 tracing::error!(job = job.id, error = %e, "cannot record the job as running");
             }
             let (progress, tending, stop) = self.tend(&job, Arc::clone(&delivery));
-            let cooked = self.cook(&job, progress, stop).await;
-            let stored = match cooked {
-                Ok(Made {
-                    glb,
-                    report,
-                    input_bytes,
-                }) => {
-                    let meta = ResultMeta {
-                        job: job.id.clone(),
-                        bytes: (glb.len() + report.len()) as u64 + input_bytes,
-                        created_ms: now_ms(),
-                    };
-                    let key = job.key.clone();
-                    let put = || self.store.put_result(&key, &glb, &report, &meta);
-                    match persist("store the result", &job.id, put).await {
-                        Ok(()) => {
-                            self.cache.lock().unwrap().touch(&job.key, meta.bytes);
-                            Ok(())
-                        }
-                        Err(()) => {
-                            // The job stays on the queue and runs again once storage is back.
-                            tending.abort();
-                            self.live.lock().unwrap().remove(&id);
-                            return;
-                        }
-                    }
-                }
-                Err(e) => Err(e),
+            let stored = match self.cook(&job, progress, stop).await {
+                Ok(made) => self.store_result(&job, made).await,
+                Err(unmade) => Err(unmade),
             };
             tending.abort();
-            stored
+            match stored {
+                Ok(()) => Ok(()),
+                Err(Unmade::Failed(e)) => Err(e),
+                Err(Unmade::StoreDown) => {
+                    // The job stays on the queue and runs again once storage is back.
+                    tracing::error!(job = job.id, "the store does not answer; the job stays queued");
+                    self.live.lock().unwrap().remove(&id);
+                    return;
+                }
+            }
         };
         self.end(job, outcome, delivery.as_ref()).await;
+    }
+
+    /// Stores a cooked job's result, retrying while the store does not answer.
+    async fn store_result(&self, job: &Job, made: Made) -> Result<(), Unmade> {
+        let Made {
+            glb,
+            report,
+            input_bytes,
+        } = made;
+        let meta = ResultMeta {
+            job: job.id.clone(),
+            bytes: (glb.len() + report.len()) as u64 + input_bytes,
+            created_ms: now_ms(),
+        };
+        patiently("store the result", &job.id, || {
+            self.store.put_result(&job.key, &glb, &report, &meta)
+        })
+        .await?;
+        self.cache.lock().unwrap().touch(&job.key, meta.bytes);
+        Ok(())
     }
 
     /// Records how a job ended and takes it off the queue. A failed job's input goes: nothing
@@ -507,7 +511,7 @@ impl Service {
         }
         job.updated_ms = now_ms();
         metrics::counter!("occluder_jobs_finished_total", "state" => job.state.name()).increment(1);
-        let recorded = persist("record the finished job", &job.id, || self.store.put_job(&job)).await;
+        let recorded = patiently("record the finished job", &job.id, || self.store.put_job(&job)).await;
         self.live.lock().unwrap().remove(&job.id);
         if recorded.is_ok() {
             let _ = self.store.release(&job.key, &job.id).await;
@@ -622,15 +626,13 @@ impl Service {
     }
 
     /// Ingests and cooks on a blocking thread; a panic fails this job only.
-    async fn cook(self: &Arc<Self>, job: &Job, progress: watch::Sender<Job>, stop: Stop) -> Result<Made, JobError> {
+    async fn cook(self: &Arc<Self>, job: &Job, progress: watch::Sender<Job>, stop: Stop) -> Result<Made, Unmade> {
         let fail = |code: &str, message: String| JobError {
             code: code.into(),
             message,
         };
-        let input = match self.store.input(&job.key).await {
-            Ok(Some(input)) => input,
-            Ok(None) => return Err(fail("input_missing", "the uploaded mesh is gone".into())),
-            Err(e) => return Err(fail("storage", e.to_string())),
+        let Some(input) = patiently("read the input", &job.id, || self.store.input(&job.key)).await? else {
+            return Err(fail("input_missing", "the uploaded mesh is gone".into()).into());
         };
         let input_bytes = input.encode().len() as u64;
         if job.kind == JobKind::Level {
@@ -644,7 +646,7 @@ impl Service {
         let mut settings = self.settings.clone();
         match serde_json::from_value(job.settings.clone()) {
             Ok(cook) => settings.cook = cook,
-            Err(e) => return Err(fail("bad_settings", e.to_string())),
+            Err(e) => return Err(fail("bad_settings", e.to_string()).into()),
         }
         let service = Arc::clone(self);
         let running = job.clone();
@@ -667,7 +669,7 @@ impl Service {
             }
             metrics::histogram!("occluder_cook_seconds").record(cooked.report.total_ms() / 1e3);
             let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
-            Ok((cooked.glb(), report))
+            Ok::<_, JobError>((cooked.glb(), report))
         });
         match work.await {
             Ok(Ok((glb, report))) => Ok(Made {
@@ -675,8 +677,8 @@ impl Service {
                 report,
                 input_bytes,
             }),
-            Ok(Err(e)) => Err(e),
-            Err(e) => Err(fail("panic", format!("the cook crashed: {e}"))),
+            Ok(Err(e)) => Err(e.into()),
+            Err(e) => Err(fail("panic", format!("the cook crashed: {e}")).into()),
         }
     }
 
@@ -732,7 +734,7 @@ impl Service {
         input: store::Input,
         progress: watch::Sender<Job>,
         stop: Stop,
-    ) -> Result<(Vec<u8>, Vec<u8>), JobError> {
+    ) -> Result<(Vec<u8>, Vec<u8>), Unmade> {
         let fail = |code: &str, message: String| JobError {
             code: code.into(),
             message,
@@ -740,7 +742,7 @@ impl Service {
         let mut settings = self.settings.clone();
         match serde_json::from_value::<LevelJobSettings>(job.settings.clone()) {
             Ok(level) => (settings.cook, settings.level) = (level.cook, level.level),
-            Err(e) => return Err(fail("bad_settings", e.to_string())),
+            Err(e) => return Err(fail("bad_settings", e.to_string()).into()),
         }
         let level = crate::level::parse_manifest("the level", &input.bytes)
             .and_then(|m| crate::level::Level::from_manifest(m, |mesh| Some(crate::level::MeshRef::Key(mesh.into()))))
@@ -766,10 +768,11 @@ impl Service {
         });
         let baked = match work.await {
             Ok(Ok(baked)) => baked,
-            Ok(Err(crate::level::LevelError::Cook(e))) => return Err(cook_failure(e, limit)),
-            Ok(Err(e @ crate::level::LevelError::Cache(_))) => return Err(fail("storage", e.to_string())),
-            Ok(Err(e)) => return Err(fail("bad_level", e.to_string())),
-            Err(e) => return Err(fail("panic", format!("the bake crashed: {e}"))),
+            Ok(Err(crate::level::LevelError::Cook(e))) => return Err(cook_failure(e, limit).into()),
+            Ok(Err(crate::level::LevelError::Store(e))) => return Err(e.into()),
+            Ok(Err(e @ crate::level::LevelError::Cache(_))) => return Err(fail("storage", e.to_string()).into()),
+            Ok(Err(e)) => return Err(fail("bad_level", e.to_string()).into()),
+            Err(e) => return Err(fail("panic", format!("the bake crashed: {e}")).into()),
         };
         {
             let mut cache = self.cache.lock().unwrap();
@@ -926,27 +929,54 @@ fn cook_failure(e: CookError, limit: f64) -> JobError {
     JobError { code, message }
 }
 
-/// Retries a store write that failed (a NATS server restarting, say) for up to half a minute.
-/// Err once it gives up: the caller leaves the job on the queue, to run again.
-async fn persist<F, Fut>(what: &str, job: &str, mut write: F) -> Result<(), ()>
+/// Retries a store call that failed in its backend (a NATS server restarting, say) for up to
+/// `PERSIST_PATIENCE`, and returns its last answer. A record that cannot be decoded is not
+/// retried: it reads the same the next time.
+async fn patiently<T, F, Fut>(what: &str, job: &str, mut call: F) -> StoreResult<T>
 where
     F: FnMut() -> Fut,
-    Fut: std::future::Future<Output = StoreResult<()>>,
+    Fut: std::future::Future<Output = StoreResult<T>>,
 {
     let mut pause = Duration::from_millis(100);
-    let started = std::time::Instant::now();
+    let started = tokio::time::Instant::now();
     loop {
-        match write().await {
-            Ok(()) => return Ok(()),
-            Err(e) if started.elapsed() < PERSIST_PATIENCE => {
+        match call().await {
+            Err(e @ StoreError::Backend(_)) if started.elapsed() < PERSIST_PATIENCE => {
                 tracing::warn!(job, error = %e, "cannot {what} yet; retrying");
                 tokio::time::sleep(pause).await;
                 pause = (pause * 2).min(Duration::from_secs(2));
             }
             Err(e) => {
-                tracing::error!(job, error = %e, "cannot {what}; the job stays queued");
-                return Err(());
+                tracing::error!(job, error = %e, "cannot {what}");
+                return Err(e);
             }
+            answer => return answer,
+        }
+    }
+}
+
+/// Why a job made no result.
+enum Unmade {
+    /// It failed for good, for the reason given.
+    Failed(JobError),
+    /// The store stopped answering: the job stays on the queue, to run again.
+    StoreDown,
+}
+
+impl From<JobError> for Unmade {
+    fn from(e: JobError) -> Self {
+        Unmade::Failed(e)
+    }
+}
+
+impl From<StoreError> for Unmade {
+    fn from(e: StoreError) -> Self {
+        match e {
+            StoreError::Backend(_) => Unmade::StoreDown,
+            StoreError::Decode(_) => Unmade::Failed(JobError {
+                code: "storage".into(),
+                message: e.to_string(),
+            }),
         }
     }
 }
@@ -961,7 +991,7 @@ fn release_free_memory() {
     }
 }
 
-/// How long a worker retries a failed store write before it leaves the job on the queue.
+/// How long a worker retries a failed store call before it leaves the job on the queue.
 const PERSIST_PATIENCE: Duration = Duration::from_secs(30);
 
 /// How long a worker waits on the queue before it looks at `stop` again.
@@ -1166,7 +1196,8 @@ pub async fn work(settings: Settings) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::Lru;
+    use super::{Lru, PERSIST_PATIENCE, StoreError, Unmade, patiently};
+    use std::sync::atomic::{AtomicUsize, Ordering};
 
     #[test]
     fn lru_finds_the_least_recently_used_key_not_kept() {
@@ -1183,5 +1214,52 @@ mod tests {
         assert_eq!(lru.oldest(|_| false).as_deref(), Some("c"));
         assert_eq!(lru.oldest(|_| true), None);
         assert_eq!(lru.by_use.len(), lru.entries.len());
+    }
+
+    /// A store call that answers `failures` backend errors, then `Ok(calls)`.
+    fn failing(failures: usize, calls: &AtomicUsize) -> impl std::future::Future<Output = super::StoreResult<usize>> {
+        let call = calls.fetch_add(1, Ordering::Relaxed) + 1;
+        async move {
+            match call <= failures {
+                true => Err(StoreError::Backend("nats: missed idle heartbeat".into())),
+                false => Ok(call),
+            }
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_store_call_is_retried_while_its_backend_fails() {
+        let calls = AtomicUsize::new(0);
+        let answer = patiently("read the input", "job", || failing(3, &calls)).await;
+        assert_eq!(answer.unwrap(), 4);
+        assert_eq!(calls.load(Ordering::Relaxed), 4);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_store_call_gives_up_after_its_patience() {
+        let calls = AtomicUsize::new(0);
+        let started = tokio::time::Instant::now();
+        let answer = patiently("read the input", "job", || failing(usize::MAX, &calls)).await;
+        assert!(started.elapsed() >= PERSIST_PATIENCE);
+        assert!(calls.load(Ordering::Relaxed) > 2, "not retried");
+        assert!(matches!(Unmade::from(answer.unwrap_err()), Unmade::StoreDown));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn an_unreadable_record_fails_the_job_at_once() {
+        let calls = AtomicUsize::new(0);
+        let answer: super::StoreResult<()> = patiently("read the input", "job", || {
+            calls.fetch_add(1, Ordering::Relaxed);
+            async { Err(StoreError::Decode("truncated".into())) }
+        })
+        .await;
+        assert_eq!(calls.load(Ordering::Relaxed), 1);
+        match Unmade::from(answer.unwrap_err()) {
+            Unmade::Failed(e) => assert_eq!(
+                (e.code.as_str(), e.message.as_str()),
+                ("storage", "stored record is unreadable: truncated")
+            ),
+            Unmade::StoreDown => panic!("an unreadable record was left queued"),
+        }
     }
 }

@@ -151,20 +151,24 @@ fn draw_sky(
     gpu: Option<&Gpu>,
     out: &mut [f32],
 ) -> Result<(), GpuError> {
+    // Row by row, a tile's run of pixels at a time.
     let mask = |window: &[bool], image: &mut [f32]| {
-        for (i, depth) in image.iter_mut().enumerate() {
-            let (x, y) = (i % PIXELS, i / PIXELS);
-            if !window[(y / TILE) * (PIXELS / TILE) + x / TILE] {
-                *depth = 0.0;
+        for (y, row) in image.chunks_exact_mut(PIXELS).enumerate() {
+            let tiles = &window[(y / TILE) * (PIXELS / TILE)..][..PIXELS / TILE];
+            for (pixels, _) in row.chunks_exact_mut(TILE).zip(tiles).filter(|(_, inside)| !**inside) {
+                pixels.fill(0.0);
             }
         }
     };
     let finish = |v: usize, view: &View, image: &mut [f32], out: &mut [f32]| {
         draw_eroded(view, &split.soup, &split.eroded, image);
-        if let Some(windows) = windows {
-            mask(&windows[v], image);
+        match windows {
+            Some(windows) => {
+                mask(&windows[v], image);
+                farthest_nearby_in_window(&windows[v], image, out);
+            }
+            None => farthest_nearby(image, PIXELS, out),
         }
-        farthest_nearby(image, PIXELS, out);
     };
     let out = out.par_chunks_mut(PIXELS * PIXELS).zip(sky).enumerate();
     match gpu {
@@ -978,9 +982,28 @@ fn farthest_per_tile(depth: &[f32], n: usize, out: &mut [f32]) {
     }
 }
 
+/// [`farthest_nearby`] of a sky view's image that is 0 outside its `window`: only in the rows of
+/// tiles that hold some of the window, and a pixel row either side, can the result be other than 0.
+fn farthest_nearby_in_window(window: &[bool], depth: &[f32], out: &mut [f32]) {
+    const ACROSS: usize = PIXELS / TILE;
+    out.fill(0.0);
+    let held: Vec<bool> = window.chunks_exact(ACROSS).map(|tiles| tiles.contains(&true)).collect();
+    let mut first = 0;
+    for run in held.chunk_by(|a, b| a == b) {
+        let tile_rows = first..first + run.len();
+        first = tile_rows.end;
+        if run[0] {
+            // Outside the run the image is 0, which no depth here is below.
+            let rows = (tile_rows.start * TILE).saturating_sub(1)..(tile_rows.end * TILE + 1).min(PIXELS);
+            let pixels = rows.start * PIXELS..rows.end * PIXELS;
+            farthest_nearby(&depth[pixels.clone()], PIXELS, &mut out[pixels]);
+        }
+    }
+}
+
 /// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty), into
-/// `out`: the farthest over each row's neighbours, then over those of the rows around. `n` is at
-/// least 2.
+/// `out`: the farthest over each row's neighbours, then over those of the rows around. Rows are
+/// `n` wide, `n` at least 2, and there are at least 2 of them.
 fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
     // Slices zipped, in AVX2's wider lanes where the CPU has them: the same maxima.
     with_avx2(|| {
@@ -995,11 +1018,12 @@ fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
         // Over the rows around, in place, with the row above and this one as they were kept
         // aside: no image-sized buffer, whose pages a fresh allocation would fault in view
         // after view.
+        let rows = out.len() / n;
         let (mut above, mut this) = (out[..n].to_vec(), vec![0f32; n]);
-        for y in 0..n {
+        for y in 0..rows {
             this.copy_from_slice(&out[y * n..(y + 1) * n]);
             let (upto, rest) = out.split_at_mut((y + 1) * n);
-            let below = if y + 1 < n { &rest[..n] } else { &this[..] };
+            let below = if y + 1 < rows { &rest[..n] } else { &this[..] };
             let around = above.iter().zip(&this).zip(below);
             for (far, ((above, this), below)) in upto[y * n..].iter_mut().zip(around) {
                 *far = above.max(*this).max(*below);
@@ -1399,6 +1423,31 @@ mod tests {
             let pixels = (0..TILE).flat_map(|dy| (0..TILE).map(move |dx| (ty * TILE + dy) * n + tx * TILE + dx));
             assert!(pixels.map(|i| depth[i]).any(|d| d == tile), "tile {t}");
         }
+    }
+
+    #[test]
+    fn the_farthest_depths_nearby_in_a_window_are_those_over_the_whole_masked_image() {
+        const ACROSS: usize = PIXELS / TILE;
+        let mut rng = fastrand::Rng::with_seed(29);
+        // Rows of tiles the window leaves out, runs of them, and the first and last rows held.
+        let held_rows = |row: usize| matches!(row, 0 | 3 | 4 | 9..=14 | 31);
+        let window: Vec<bool> = (0..ACROSS * ACROSS)
+            .map(|t| held_rows(t / ACROSS) && rng.u8(..) < 90)
+            .collect();
+        let depth: Vec<f32> = (0..PIXELS * PIXELS)
+            .map(|i| match window[(i / PIXELS / TILE) * ACROSS + (i % PIXELS) / TILE] {
+                false => 0.0,
+                true if rng.u8(..) < 40 => f32::INFINITY,
+                true => rng.f32() * 3.0,
+            })
+            .collect();
+        let (mut whole, mut windowed) = (vec![0f32; PIXELS * PIXELS], vec![7f32; PIXELS * PIXELS]);
+        farthest_nearby(&depth, PIXELS, &mut whole);
+        farthest_nearby_in_window(&window, &depth, &mut windowed);
+        for (i, (a, b)) in whole.iter().zip(&windowed).enumerate() {
+            assert_eq!(a.to_bits(), b.to_bits(), "pixel {}, {}", i % PIXELS, i / PIXELS);
+        }
+        assert!(whole.iter().any(|&d| d > 0.0) && whole.contains(&0.0));
     }
 
     #[test]

@@ -15,7 +15,7 @@ use crate::config::Settings;
 use crate::cook::cook_with_progress;
 use crate::key::cache_key;
 use crate::mesh::{Format, Mesh, glb, load_bytes, point_bounds};
-use crate::store::{Input, ResultMeta, Store, StoreError, job::now_ms};
+use crate::store::{Input, ResultMeta, Store, StoreError, job::now_ms, patiently};
 use batch::Placed;
 use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
@@ -62,7 +62,7 @@ pub enum LevelError {
     /// A cached result that cannot be read as an occluder.
     #[error("cache: {0}")]
     Cache(String),
-    /// The store did not answer.
+    /// The store did not answer, within [`crate::store::PATIENCE`] where that is retried.
     #[error(transparent)]
     Store(#[from] StoreError),
     #[error(transparent)]
@@ -469,14 +469,14 @@ async fn look_up(
     let mut occluders = HashMap::new();
     let mut misses = Vec::new();
     for (m, key, source) in keyed {
-        if let Some(bytes) = store.result_glb(&key).await? {
-            let report = store.result_report(&key).await?;
+        if let Some(bytes) = patiently("read the cached result", &key, || store.result_glb(&key)).await? {
+            let report = patiently("read the cached report", &key, || store.result_report(&key)).await?;
             occluders.insert(m, occluder_from_glb(&key, &bytes, report.as_deref())?);
             continue;
         }
         let source = match source {
             Some(source) => source,
-            None => match store.input(&key).await? {
+            None => match patiently("read the uploaded mesh", &key, || store.input(&key)).await? {
                 Some(input) => {
                     let (mesh, stats) = input.load(limits).map_err(|e| LevelError::BadMesh {
                         mesh: key.clone(),
@@ -505,13 +505,13 @@ async fn file_result(
 ) -> Result<(Occluder, u64), LevelError> {
     let glb = cooked.glb();
     let report = serde_json::to_vec_pretty(&cooked.report).expect("reports serialize");
-    store.put_input(key, input).await?;
+    patiently("store the mesh", key, || store.put_input(key, input)).await?;
     let meta = ResultMeta {
         job: "level".into(),
         bytes: (glb.len() + report.len() + input.encode().len()) as u64,
         created_ms: now_ms(),
     };
-    store.put_result(key, &glb, &report, &meta).await?;
+    patiently("store the result", key, || store.put_result(key, &glb, &report, &meta)).await?;
     Ok((occluder_from_glb(key, &glb, Some(&report))?, meta.bytes))
 }
 

@@ -15,7 +15,7 @@ pub mod tls;
 use crate::config::Settings;
 use crate::cook::{CookError, cook_with_progress};
 use crate::store::job::{self, Job, JobError, JobKind, JobState, now_ms};
-use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreError, StoreResult};
+use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, patiently};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -929,32 +929,6 @@ fn cook_failure(e: CookError, limit: f64) -> JobError {
     JobError { code, message }
 }
 
-/// Retries a store call that failed in its backend (a NATS server restarting, say) for up to
-/// `PERSIST_PATIENCE`, and returns its last answer. A record that cannot be decoded is not
-/// retried: it reads the same the next time.
-async fn patiently<T, F, Fut>(what: &str, job: &str, mut call: F) -> StoreResult<T>
-where
-    F: FnMut() -> Fut,
-    Fut: std::future::Future<Output = StoreResult<T>>,
-{
-    let mut pause = Duration::from_millis(100);
-    let started = tokio::time::Instant::now();
-    loop {
-        match call().await {
-            Err(e @ StoreError::Backend(_)) if started.elapsed() < PERSIST_PATIENCE => {
-                tracing::warn!(job, error = %e, "cannot {what} yet; retrying");
-                tokio::time::sleep(pause).await;
-                pause = (pause * 2).min(Duration::from_secs(2));
-            }
-            Err(e) => {
-                tracing::error!(job, error = %e, "cannot {what}");
-                return Err(e);
-            }
-            answer => return answer,
-        }
-    }
-}
-
 /// Why a job made no result.
 enum Unmade {
     /// It failed for good, for the reason given.
@@ -990,9 +964,6 @@ fn release_free_memory() {
         libc::malloc_trim(0);
     }
 }
-
-/// How long a worker retries a failed store call before it leaves the job on the queue.
-const PERSIST_PATIENCE: Duration = Duration::from_secs(30);
 
 /// How long a worker waits on the queue before it looks at `stop` again.
 const POLL: Duration = Duration::from_secs(1);
@@ -1196,7 +1167,8 @@ pub async fn work(settings: Settings) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::{Lru, PERSIST_PATIENCE, StoreError, Unmade, patiently};
+    use super::{Lru, StoreError, Unmade};
+    use crate::store::{PATIENCE, patiently};
     use std::sync::atomic::{AtomicUsize, Ordering};
 
     #[test]
@@ -1240,7 +1212,7 @@ mod tests {
         let calls = AtomicUsize::new(0);
         let started = tokio::time::Instant::now();
         let answer = patiently("read the input", "job", || failing(usize::MAX, &calls)).await;
-        assert!(started.elapsed() >= PERSIST_PATIENCE);
+        assert!(started.elapsed() >= PATIENCE);
         assert!(calls.load(Ordering::Relaxed) > 2, "not retried");
         assert!(matches!(Unmade::from(answer.unwrap_err()), Unmade::StoreDown));
     }

@@ -163,6 +163,36 @@ pub trait Store: Send + Sync + 'static {
     async fn flush(&self) -> StoreResult<()>;
 }
 
+/// How long a store call that fails in its backend is retried: a worker then leaves its job on
+/// the queue.
+pub const PATIENCE: Duration = Duration::from_secs(30);
+
+/// Retries a store call about `id` (a job, a key) that failed in its backend (a NATS server
+/// restarting, say) for up to [`PATIENCE`], and returns its last answer. A record that cannot be
+/// decoded is not retried: it reads the same the next time.
+pub async fn patiently<T, F, Fut>(what: &str, id: &str, mut call: F) -> StoreResult<T>
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = StoreResult<T>>,
+{
+    let mut pause = Duration::from_millis(100);
+    let started = tokio::time::Instant::now();
+    loop {
+        match call().await {
+            Err(e @ StoreError::Backend(_)) if started.elapsed() < PATIENCE => {
+                tracing::warn!(id, error = %e, "cannot {what} yet; retrying");
+                tokio::time::sleep(pause).await;
+                pause = (pause * 2).min(Duration::from_secs(2));
+            }
+            Err(e) => {
+                tracing::error!(id, error = %e, "cannot {what}");
+                return Err(e);
+            }
+            answer => return answer,
+        }
+    }
+}
+
 /// `hash ‖ payload`.
 pub fn seal(payload: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(32 + payload.len());

@@ -31,6 +31,13 @@ pub fn floor_index(v: f64) -> usize {
     (v as i32).max(0) as usize
 }
 
+/// The index of `n` (at least 1) at or below `v`: the first for negatives and NaN, the last
+/// beyond. Truncating a clamped value floors it, where `floor` is a library call.
+#[inline(always)]
+pub fn clamped_index(v: f64, n: usize) -> usize {
+    (v.max(0.0) as usize).min(n - 1)
+}
+
 /// The least index at or above `v`, for v < 2³¹; 0 for negatives and NaN.
 #[inline(always)]
 pub fn ceil_index(v: f64) -> usize {

@@ -6,7 +6,7 @@ pub mod covered;
 pub mod gpu;
 
 use crate::geom::camera::{Lens, View};
-use crate::geom::{ceil_index, floor_index, greater, index_to_f64, lesser, with_avx2};
+use crate::geom::{ceil_index, clamped_index, floor_index, greater, index_to_f64, lesser, with_avx2};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
@@ -874,7 +874,7 @@ fn nearest_bound(q: &[DVec3; 3], near: f64, n: usize) -> Option<(f64, Span)> {
         return None;
     }
     // Pixel centres i + 0.5 within the bounds.
-    let pixel = |v: f64| (v.max(0.0) as usize).min(n - 1);
+    let pixel = |v: f64| clamped_index(v, n);
     let span = Span {
         x: (pixel(lo.x - 1.5), pixel(hi.x + 0.5)),
         y: (pixel(lo.y - 1.5), pixel(hi.y + 0.5)),

@@ -29,7 +29,7 @@ use crate::geom::grid_counts::GridCounts;
 use crate::geom::meshlets::{Meshlet, meshlets};
 use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
-use crate::geom::with_avx2;
+use crate::geom::{clamped_index, with_avx2};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
@@ -154,7 +154,7 @@ fn draw_sky(
     // Row by row, a tile's run of pixels at a time.
     let mask = |window: &[bool], image: &mut [f32]| {
         for (y, row) in image.chunks_exact_mut(PIXELS).enumerate() {
-            let tiles = &window[(y / TILE) * (PIXELS / TILE)..][..PIXELS / TILE];
+            let tiles = &window[(y / TILE) * WindowTiles::ACROSS..][..WindowTiles::ACROSS];
             for (pixels, _) in row.chunks_exact_mut(TILE).zip(tiles).filter(|(_, inside)| !**inside) {
                 pixels.fill(0.0);
             }
@@ -278,8 +278,7 @@ impl WindowTiles {
     /// How much of the window holds the tiles that the image points from `lo` to `hi` (in
     /// pixels), grown by a pixel against rounding, may fall in.
     fn meets(&self, lo: DVec3, hi: DVec3) -> Meets {
-        // Truncating a clamped value: `floor` is a library call on this target.
-        let tile = |v: f64| ((v.max(0.0) * (1.0 / TILE as f64)) as usize).min(Self::ACROSS - 1);
+        let tile = |v: f64| clamped_index(v * (1.0 / TILE as f64), Self::ACROSS);
         let (xs, ys) = (
             tile(lo.x - 1.0)..tile(hi.x + 1.0) + 1,
             tile(lo.y - 1.0)..tile(hi.y + 1.0) + 1,
@@ -632,10 +631,7 @@ impl OpenViews {
                 d.dot(cells.u) / cells.u.length_squared() * nu as f64,
                 d.dot(cells.v) / cells.v.length_squared() * nv as f64,
             );
-            let around = |x: f64, n: usize| {
-                let cell = |x: f64| (x.floor().max(0.0) as usize).min(n - 1);
-                [cell(x - 1e-6), cell(x + 1e-6)]
-            };
+            let around = |x: f64, n: usize| [clamped_index(x - 1e-6, n), clamped_index(x + 1e-6, n)];
             let (ia, ib) = (around(a, nu), around(b, nv));
             ia.into_iter().flat_map(move |i| ib.map(|j| i * nv + j))
         };
@@ -985,9 +981,11 @@ fn farthest_per_tile(depth: &[f32], n: usize, out: &mut [f32]) {
 /// [`farthest_nearby`] of a sky view's image that is 0 outside its `window`: only in the rows of
 /// tiles that hold some of the window, and a pixel row either side, can the result be other than 0.
 fn farthest_nearby_in_window(window: &[bool], depth: &[f32], out: &mut [f32]) {
-    const ACROSS: usize = PIXELS / TILE;
     out.fill(0.0);
-    let held: Vec<bool> = window.chunks_exact(ACROSS).map(|tiles| tiles.contains(&true)).collect();
+    let held: Vec<bool> = window
+        .chunks_exact(WindowTiles::ACROSS)
+        .map(|tiles| tiles.contains(&true))
+        .collect();
     let mut first = 0;
     for run in held.chunk_by(|a, b| a == b) {
         let tile_rows = first..first + run.len();
@@ -1427,7 +1425,7 @@ mod tests {
 
     #[test]
     fn the_farthest_depths_nearby_in_a_window_are_those_over_the_whole_masked_image() {
-        const ACROSS: usize = PIXELS / TILE;
+        const ACROSS: usize = WindowTiles::ACROSS;
         let mut rng = fastrand::Rng::with_seed(29);
         // Rows of tiles the window leaves out, runs of them, and the first and last rows held.
         let held_rows = |row: usize| matches!(row, 0 | 3 | 4 | 9..=14 | 31);

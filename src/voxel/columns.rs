@@ -7,6 +7,7 @@
 
 use super::Grid;
 use crate::geom::buckets::Buckets;
+use crate::geom::clamped_index;
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
 use num_traits::Float;
@@ -167,7 +168,7 @@ impl ColumnIndex {
             .map(|t| {
                 let tri = mesh.corners(t).map(|v| v.as_dvec3().truncate());
                 let (a, b) = (tri[0].min(tri[1]).min(tri[2]), tri[0].max(tri[1]).max(tri[2]));
-                let along = |p: DVec2, k: usize| bucket_along((p[k] - lo[k]) / cell, dims[k]) as u32;
+                let along = |p: DVec2, k: usize| clamped_index((p[k] - lo[k]) / cell, dims[k]) as u32;
                 [along(a, 0), along(a, 1), along(b, 0) + 1, along(b, 1) + 1]
             })
             .collect();
@@ -196,7 +197,7 @@ impl ColumnIndex {
     /// The triangles whose footprint buckets meet the xy box [lo, hi]: a superset of those
     /// that reach into it, sorted.
     pub fn triangles_over(&self, lo: DVec2, hi: DVec2) -> Vec<u32> {
-        let bucket = |p: DVec2, k: usize| bucket_along((p[k] - self.lo[k]) / self.cell, self.dims[k]);
+        let bucket = |p: DVec2, k: usize| clamped_index((p[k] - self.lo[k]) / self.cell, self.dims[k]);
         let mut out = Vec::new();
         for x in bucket(lo, 0)..=bucket(hi, 0) {
             for y in bucket(lo, 1)..=bucket(hi, 1) {
@@ -207,11 +208,4 @@ impl ColumnIndex {
         out.dedup();
         out
     }
-}
-
-/// The bucket, of `n` along an axis, that `cells` (a coordinate in buckets from the first)
-/// falls in, the first or last for one beyond them. Truncating a clamped value floors it:
-/// `floor` is a library call on this target.
-fn bucket_along(cells: f64, n: usize) -> usize {
-    (cells.max(0.0) as usize).min(n - 1)
 }

@@ -17,6 +17,7 @@ pub mod gpu;
 
 use super::Grid;
 use crate::geom::camera::View;
+use crate::geom::clamped_index;
 use crate::geom::raster::rasterize;
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
@@ -148,7 +149,7 @@ impl CubeMap {
             return true;
         }
         let n = view.pixels;
-        let px = |v: f64| (v.max(0.0) as usize).min(n - 1);
+        let px = |v: f64| clamped_index(v, n);
         q.z < f64::from(self.depth[face][px(q.y) * n + px(q.x)])
     }
 }

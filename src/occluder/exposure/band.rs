@@ -7,6 +7,7 @@
 //! whose image lies outside the band is hidden from that view.
 
 use crate::geom::camera::View;
+use crate::geom::clamped_index;
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::columns::{ColumnIndex, column_hit};
 use glam::{DVec2, DVec3, Vec3};
@@ -289,7 +290,7 @@ pub fn window(view: &View, walls: &[Wall], margin: f64, tile: usize) -> Vec<bool
         if hi.x < 0.0 || hi.y < 0.0 || lo.x >= tiles as f64 || lo.y >= tiles as f64 {
             continue;
         }
-        let index = |v: f64| (v.max(0.0) as usize).min(tiles - 1);
+        let index = |v: f64| clamped_index(v, tiles);
         for ty in index(lo.y)..=index(hi.y) {
             for tx in index(lo.x)..=index(hi.x) {
                 let k = ty * tiles + tx;

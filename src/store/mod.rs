@@ -210,6 +210,48 @@ pub fn unseal(sealed: &[u8]) -> Option<&[u8]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// A store call that answers `failures` backend errors, then `Ok(calls)`.
+    fn failing(failures: usize, calls: &AtomicUsize) -> impl std::future::Future<Output = StoreResult<usize>> {
+        let call = calls.fetch_add(1, Ordering::Relaxed) + 1;
+        async move {
+            match call <= failures {
+                true => Err(StoreError::Backend("nats: missed idle heartbeat".into())),
+                false => Ok(call),
+            }
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_store_call_is_retried_while_its_backend_fails() {
+        let calls = AtomicUsize::new(0);
+        let answer = patiently("read the input", "job", || failing(3, &calls)).await;
+        assert_eq!(answer.unwrap(), 4);
+        assert_eq!(calls.load(Ordering::Relaxed), 4);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_store_call_gives_up_after_its_patience() {
+        let calls = AtomicUsize::new(0);
+        let started = tokio::time::Instant::now();
+        let answer = patiently("read the input", "job", || failing(usize::MAX, &calls)).await;
+        assert!(started.elapsed() >= PATIENCE);
+        assert!(calls.load(Ordering::Relaxed) > 2, "not retried");
+        assert!(matches!(answer, Err(StoreError::Backend(_))));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn an_unreadable_record_is_not_read_again() {
+        let calls = AtomicUsize::new(0);
+        let answer: StoreResult<()> = patiently("read the input", "job", || {
+            calls.fetch_add(1, Ordering::Relaxed);
+            async { Err(StoreError::Decode("truncated".into())) }
+        })
+        .await;
+        assert_eq!(calls.load(Ordering::Relaxed), 1);
+        assert!(matches!(answer, Err(StoreError::Decode(_))));
+    }
 
     #[test]
     fn a_flipped_bit_breaks_the_seal() {

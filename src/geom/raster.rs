@@ -882,6 +882,18 @@ fn nearest_bound(q: &[DVec3; 3], near: f64, n: usize) -> Option<(f64, Span)> {
     Some((lo.z * (1.0 - slack), span))
 }
 
+/// For a perspective view, a depth no nearer than that of any pixel [`rasterize`] visits of
+/// `tri`, and the columns and rows those pixels lie in; None where the near plane clips the
+/// triangle or it is not finite.
+pub fn nearest_drawn(view: &View, tri: &[DVec3; 3]) -> Option<(f64, [std::ops::RangeInclusive<usize>; 2])> {
+    let Lens::Perspective { .. } = view.lens else {
+        return None;
+    };
+    let q = tri.map(|p| view.project(p));
+    let (nearest, span) = nearest_bound(&q, view.depth_tolerance(), view.pixels)?;
+    Some((nearest, [span.x.0..=span.x.1, span.y.0..=span.y.1]))
+}
+
 /// Depth images of `mesh` in `views`: on `gpu` where one is given, else on the CPU.
 /// `Unsupported` where the GPU cannot draw them (perspective views, a mesh larger than one
 /// storage binding): the caller's stage then runs on the CPU and says so.

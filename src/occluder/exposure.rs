@@ -37,6 +37,7 @@ use crate::voxel::winding::WindingField;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap, HashSet};
+use std::ops::RangeInclusive;
 use std::sync::{Mutex, PoisonError};
 
 /// Directions on the whole sphere; those not below the object are used.
@@ -528,7 +529,11 @@ impl OpenViews {
     /// The farthest depth of view `v`'s tiles under the pixels from `lo` to `hi`, with half a
     /// pixel around.
     fn farthest_over(&self, v: usize, lo: DVec3, hi: DVec3) -> f32 {
-        let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
+        self.farthest_in_tiles(v, tile_range(lo.x, hi.x), tile_range(lo.y, hi.y))
+    }
+
+    /// The farthest depth of view `v`'s tiles in `columns` and `rows` of tiles.
+    fn farthest_in_tiles(&self, v: usize, columns: RangeInclusive<usize>, rows: RangeInclusive<usize>) -> f32 {
         let far = self.images(v).1;
         rows.flat_map(|ty| columns.clone().map(move |tx| far[ty * (PIXELS / TILE) + tx]))
             .fold(0f32, f32::max)
@@ -725,7 +730,15 @@ impl OpenViews {
             // A triangle wholly above the opening's highest point counts nowhere: its pixels
             // unproject to points of it, give or take rounding.
             let lowest = triangle[0].y.min(triangle[1].y).min(triangle[2].y);
-            if lowest - self.rounding() <= horizon {
+            // The quick answer, as for the sky views below: nothing shows where no pixel the
+            // triangle may draw lies nearer than the farthest depth of the tiles they fall in.
+            let tiles = |pixels: RangeInclusive<usize>| pixels.start() / TILE..=pixels.end() / TILE;
+            let behind = || {
+                raster::nearest_drawn(view, triangle).is_some_and(|(nearest, [xs, ys])| {
+                    nearest >= f64::from(self.farthest_in_tiles(v, tiles(xs), tiles(ys))) - tolerance
+                })
+            };
+            if lowest - self.rounding() <= horizon && !behind() {
                 rasterize(view, triangle, visit);
             }
             return;

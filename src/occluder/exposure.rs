@@ -390,9 +390,9 @@ impl OpenViews {
             },
         );
         sky_drawn?;
-        let mut tiles = vec![0f32; views.len() * (PIXELS / TILE).pow(2)];
+        let mut tiles = vec![0f32; views.len() * WindowTiles::ACROSS.pow(2)];
         tiles
-            .par_chunks_mut((PIXELS / TILE).pow(2))
+            .par_chunks_mut(WindowTiles::ACROSS.pow(2))
             .zip(depths.par_chunks(PIXELS * PIXELS))
             .for_each(|(out, depth)| farthest_per_tile(depth, PIXELS, out));
         Ok(OpenViews {
@@ -535,14 +535,14 @@ impl OpenViews {
     /// The farthest depth of view `v`'s tiles in `columns` and `rows` of tiles.
     fn farthest_in_tiles(&self, v: usize, columns: RangeInclusive<usize>, rows: RangeInclusive<usize>) -> f32 {
         let far = self.images(v).1;
-        rows.flat_map(|ty| columns.clone().map(move |tx| far[ty * (PIXELS / TILE) + tx]))
+        rows.flat_map(|ty| columns.clone().map(move |tx| far[ty * WindowTiles::ACROSS + tx]))
             .fold(0f32, f32::max)
     }
 
     /// View `v`'s image (each pixel's farthest depth nearby) and the farthest depth of each of
     /// its tiles, a row after another.
     fn images(&self, v: usize) -> (&[f32], &[f32]) {
-        let (pixels, tiles) = (PIXELS * PIXELS, (PIXELS / TILE).pow(2));
+        let (pixels, tiles) = (PIXELS * PIXELS, WindowTiles::ACROSS.pow(2));
         (
             &self.depths[v * pixels..(v + 1) * pixels],
             &self.tiles[v * tiles..(v + 1) * tiles],
@@ -752,7 +752,7 @@ impl OpenViews {
         // depth of every tile under its screen bounds shows nowhere.
         let farthest = self.farthest_over(v, lo, hi);
         let (columns, rows) = (tile_range(lo.x, hi.x), tile_range(lo.y, hi.y));
-        let tiles = PIXELS / TILE;
+        let tiles = WindowTiles::ACROSS;
         let on_screen = lo.x >= 0.0 && lo.y >= 0.0 && hi.x <= PIXELS as f64 && hi.y <= PIXELS as f64;
         if on_screen && lo.z >= f64::from(farthest) - tolerance {
             return;
@@ -976,7 +976,7 @@ impl Drop for OpenViews {
 
 /// The tiles whose pixel centres may lie in [a, b] along one axis of the screen.
 fn tile_range(a: f64, b: f64) -> std::ops::RangeInclusive<usize> {
-    let last = (PIXELS / TILE - 1) as f64;
+    let last = (WindowTiles::ACROSS - 1) as f64;
     let tile = |x: f64| (x / TILE as f64).floor().clamp(0.0, last) as usize;
     tile(a - 0.5)..=tile(b + 0.5)
 }
@@ -1559,7 +1559,7 @@ mod tests {
             mesh.triangles.push([3 * k, 3 * k + 1, 3 * k + 2]);
         }
         let parts = meshlets(&mesh);
-        let tiles = PIXELS / TILE;
+        let tiles = WindowTiles::ACROSS;
         // A window of scattered tiles and a solid block of them.
         let window: Vec<bool> = (0..tiles * tiles)
             .map(|k| rng.f32() < 0.1 || (k / tiles < 8 && k % tiles < 8))

@@ -117,15 +117,15 @@ impl Nats {
     }
 
     /// Stops the server (SIGTERM, as a rolling restart does) and starts it again on the same
-    /// port and store.
-    fn restart(mut self) -> Nats {
+    /// port and store once it has been `away` for so long.
+    fn restart(mut self, away: Duration) -> Nats {
         Command::new("kill")
             .args(["-TERM", &self.child.id().to_string()])
             .status()
             .unwrap();
         self.child.wait().unwrap();
-        // Away for a moment: the nodes' calls meanwhile wait or fail, and no job may be lost.
-        std::thread::sleep(Duration::from_secs(1));
+        // The nodes' calls meanwhile wait or fail, and no job may be lost.
+        std::thread::sleep(away);
         let (port, dir, secrets) = (
             self.port,
             std::mem::take(&mut self.dir),
@@ -332,7 +332,7 @@ fn nats_restarted_mid_run_loses_no_job() {
             .to_string()
     }));
 
-    let nats = nats.restart();
+    let nats = nats.restart(Duration::from_secs(1));
     // Accepted while the server was away, or just after.
     jobs.push(
         submit(&api.base, "", &small_mesh(57))["job"]
@@ -346,6 +346,26 @@ fn nats_restarted_mid_run_loses_no_job() {
         let key = done["key"].as_str().unwrap();
         assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 200);
     }
+    drop(nats);
+}
+
+#[test]
+fn a_worker_keeps_a_job_through_a_store_outage_longer_than_its_retries_and_finishes_it() {
+    let Some(nats) = Nats::start("outage") else { return };
+    let api = nats.api(&[]);
+    // One start allowed: a worker that gave the job back during the outage would see it handed
+    // out a second time and fail it as worker_lost.
+    let _worker = nats.worker(&[ACK_WAIT, "service.max_deliver=1"]);
+    let accepted = submit(&api.base, SLOW, &slow_mesh());
+    let (job, key) = (accepted["job"].as_str().unwrap(), accepted["key"].as_str().unwrap());
+    wait_running(&api.base, job);
+    // Away longer than a worker retries a store call (store::PATIENCE, 30 s): the cook ends
+    // meanwhile, and storing its result gives up.
+    let nats = nats.restart(Duration::from_secs(40));
+    let done = wait_for(&api.base, job, Duration::from_secs(120));
+    assert_eq!(done["state"], "done", "{done}");
+    assert_eq!(done["attempts"], 1, "{done}");
+    assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 200);
     drop(nats);
 }
 

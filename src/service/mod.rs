@@ -404,20 +404,65 @@ impl Service {
 
     /// Runs one delivered job to its end: done with a stored result, or failed with an error.
     /// Only then does it leave the queue; if this process dies first, it is handed out again.
-    async fn run(self: &Arc<Self>, delivery: Box<dyn Delivery>) {
+    /// While the store does not answer, the worker keeps the job, alive on the queue, and runs
+    /// it again once the store answers: a wait is no new delivery, which would count toward
+    /// `service.max_deliver` as a lost worker. Once `stop` turns true it leaves the job queued.
+    async fn run(self: &Arc<Self>, delivery: Box<dyn Delivery>, stop: &watch::Receiver<bool>) {
         let delivery: Arc<dyn Delivery> = Arc::from(delivery);
+        while self.run_once(&delivery).await == Ran::StoreDown {
+            if !self.wait_for_store(delivery.as_ref(), stop).await {
+                return;
+            }
+        }
+    }
+
+    /// Waits until the store answers about the delivered job, keeping the delivery alive
+    /// meanwhile; false once `stop` turns true first.
+    async fn wait_for_store(&self, delivery: &dyn Delivery, stop: &watch::Receiver<bool>) -> bool {
+        let id = delivery.job_id();
+        tracing::warn!(
+            job = id,
+            "the store does not answer; the job waits for it with its worker"
+        );
+        let mut stop = stop.clone();
+        loop {
+            if *stop.borrow() {
+                tracing::warn!(
+                    job = id,
+                    "stopping while the store does not answer; the job stays queued"
+                );
+                return false;
+            }
+            let _ = delivery.keep_alive().await;
+            if self.store.job(id).await.is_ok() {
+                tracing::info!(job = id, "the store answers again; the job runs again");
+                return true;
+            }
+            tokio::select! {
+                () = tokio::time::sleep(POLL) => {}
+                changed = stop.changed() => {
+                    if changed.is_err() {
+                        return false;
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`Service::run`]'s one try: `StoreDown` where the store stopped answering first, with
+    /// the job left on the queue.
+    async fn run_once(self: &Arc<Self>, delivery: &Arc<dyn Delivery>) -> Ran {
         let id = delivery.job_id().to_string();
         let mut job = match self.store.job(&id).await {
             Ok(Some(job)) => job,
             Ok(None) => {
                 tracing::error!(job = id, "queued job not found; dropped from the queue");
                 let _ = delivery.finish().await;
-                return;
+                return Ran::Ended;
             }
             Err(e) => {
-                // Left on the queue: it comes back once the store answers.
                 tracing::error!(job = id, error = %e, "cannot read a delivered job");
-                return;
+                return Ran::StoreDown;
             }
         };
         if job.state.is_finished() {
@@ -427,7 +472,7 @@ impl Service {
                 self.drop_input(&job).await;
             }
             let _ = delivery.finish().await;
-            return;
+            return Ran::Ended;
         }
         job.attempts = delivery.deliveries();
         job.updated_ms = now_ms();
@@ -451,7 +496,7 @@ impl Service {
             if let Err(e) = self.store.put_job(&job).await {
                 tracing::error!(job = job.id, error = %e, "cannot record the job as running");
             }
-            let (progress, tending, stop) = self.tend(&job, Arc::clone(&delivery));
+            let (progress, tending, stop) = self.tend(&job, Arc::clone(delivery));
             let stored = match self.cook(&job, progress, stop).await {
                 Ok(made) => self.store_result(&job, made).await,
                 Err(unmade) => Err(unmade),
@@ -461,14 +506,12 @@ impl Service {
                 Ok(()) => Ok(()),
                 Err(Unmade::Failed(e)) => Err(e),
                 Err(Unmade::StoreDown) => {
-                    // The job stays on the queue and runs again once storage is back.
-                    tracing::error!(job = job.id, "the store does not answer; the job stays queued");
                     self.live.lock().unwrap().remove(&id);
-                    return;
+                    return Ran::StoreDown;
                 }
             }
         };
-        self.end(job, outcome, delivery.as_ref()).await;
+        self.end(job, outcome, delivery.as_ref()).await
     }
 
     /// Stores a cooked job's result, retrying while the store does not answer.
@@ -491,9 +534,10 @@ impl Service {
         Ok(())
     }
 
-    /// Records how a job ended and takes it off the queue. A failed job's input goes: nothing
-    /// will cook it again, and a new submission uploads it anew.
-    async fn end(&self, mut job: Job, outcome: Result<(), JobError>, delivery: &dyn Delivery) {
+    /// Records how a job ended and takes it off the queue. A failed job's input goes once that
+    /// is recorded: nothing will cook it again, and a new submission uploads it anew. Where the
+    /// store does not answer, the job stays queued, its input kept, to end the same way again.
+    async fn end(&self, mut job: Job, outcome: Result<(), JobError>, delivery: &dyn Delivery) -> Ran {
         match outcome {
             Ok(()) => {
                 job.state = JobState::Done;
@@ -503,21 +547,24 @@ impl Service {
                 tracing::warn!(job = job.id, error = e.message, "job failed");
                 job.state = JobState::Failed;
                 job.error = Some(e);
-                if job.kind == JobKind::Level {
-                    self.drop_level_parts(&job).await;
-                }
-                self.drop_input(&job).await;
             }
         }
         job.updated_ms = now_ms();
-        metrics::counter!("occluder_jobs_finished_total", "state" => job.state.name()).increment(1);
         let recorded = patiently("record the finished job", &job.id, || self.store.put_job(&job)).await;
         self.live.lock().unwrap().remove(&job.id);
-        if recorded.is_ok() {
-            let _ = self.store.release(&job.key, &job.id).await;
-            if let Err(e) = delivery.finish().await {
-                tracing::warn!(job = job.id, error = %e, "cannot take the finished job off the queue; it comes back and ends at once");
+        if recorded.is_err() {
+            return Ran::StoreDown;
+        }
+        metrics::counter!("occluder_jobs_finished_total", "state" => job.state.name()).increment(1);
+        if job.state == JobState::Failed {
+            if job.kind == JobKind::Level {
+                self.drop_level_parts(&job).await;
             }
+            self.drop_input(&job).await;
+        }
+        let _ = self.store.release(&job.key, &job.id).await;
+        if let Err(e) = delivery.finish().await {
+            tracing::warn!(job = job.id, error = %e, "cannot take the finished job off the queue; it comes back and ends at once");
         }
         if job.state == JobState::Done {
             // A finished job's input is only needed to remake a broken result; it may go with
@@ -526,6 +573,7 @@ impl Service {
         }
         tokio::task::spawn_blocking(release_free_memory);
         self.update_gauges().await;
+        Ran::Ended
     }
 
     /// Deletes the records of jobs that ended more than `service.job_retention_s` ago, except
@@ -933,7 +981,7 @@ fn cook_failure(e: CookError, limit: f64) -> JobError {
 enum Unmade {
     /// It failed for good, for the reason given.
     Failed(JobError),
-    /// The store stopped answering: the job stays on the queue, to run again.
+    /// The store stopped answering: the job stays on the queue, to run again once it answers.
     StoreDown,
 }
 
@@ -965,8 +1013,17 @@ fn release_free_memory() {
     }
 }
 
-/// How long a worker waits on the queue before it looks at `stop` again.
+/// How long a worker waits on the queue, or for the store to answer, before it looks again.
 const POLL: Duration = Duration::from_secs(1);
+
+/// How a try at a delivered job ended.
+#[derive(PartialEq)]
+enum Ran {
+    /// Done or failed, and off the queue; or not a job to run.
+    Ended,
+    /// The store stopped answering: the job is still on the queue, unfinished.
+    StoreDown,
+}
 
 /// Runs `workers` tasks that take jobs from the store's queue until `stop` turns true; each
 /// finishes the job in hand first. Jobs still queued stay on the queue.
@@ -979,7 +1036,7 @@ pub async fn run_workers(service: Arc<Service>, workers: usize, stop: watch::Rec
             tokio::spawn(async move {
                 while !*stop.borrow() {
                     match service.store.next_job(POLL).await {
-                        Ok(Some(delivery)) => service.run(delivery).await,
+                        Ok(Some(delivery)) => service.run(delivery, &stop).await,
                         Ok(None) => {}
                         Err(e) => {
                             tracing::warn!(error = %e, "cannot take a job from the queue; retrying");

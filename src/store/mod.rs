@@ -163,8 +163,8 @@ pub trait Store: Send + Sync + 'static {
     async fn flush(&self) -> StoreResult<()>;
 }
 
-/// How long a store call that fails in its backend is retried: a worker then leaves its job on
-/// the queue.
+/// How long a store call that fails in its backend is retried: a worker then waits with its job
+/// until the store answers, and runs it again.
 pub const PATIENCE: Duration = Duration::from_secs(30);
 
 /// Retries a store call about `id` (a job, a key) that failed in its backend (a NATS server

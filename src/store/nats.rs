@@ -30,6 +30,9 @@ const RESULTS_BUCKET: &str = "occluder-results";
 const BLOBS_BUCKET: &str = "occluder-blobs";
 /// How long a node waits for NATS at start (it may come up after the node).
 const CONNECT_PATIENCE: Duration = Duration::from_secs(30);
+/// How long a worker waits for the answer to a pull that does not wait for messages: the
+/// server answers at once, and a pull it lost (as it restarted) is never answered.
+const PULL_ANSWER: Duration = Duration::from_secs(10);
 /// Bytes of verified results a node keeps in memory.
 const RECENT_RESULT_BYTES: usize = 64 << 20;
 
@@ -273,7 +276,10 @@ impl NatsStore {
             let consumer = self.lane_consumer(&lane).await?;
             // Without waiting: a lane whose jobs are all in workers' hands gives nothing.
             let mut batch = consumer.fetch().max_messages(1).messages().await.map_err(backend)?;
-            if let Some(message) = batch.next().await {
+            let answer = tokio::time::timeout(PULL_ANSWER, batch.next())
+                .await
+                .map_err(|_| backend(format!("no answer to a pull from lane {lane} in {PULL_ANSWER:?}")))?;
+            if let Some(message) = answer {
                 *self.last_lane.lock().unwrap() = lane;
                 return message.map(Some).map_err(backend);
             }

@@ -116,16 +116,16 @@ impl Nats {
         ]
     }
 
-    /// Stops the server (SIGTERM, as a rolling restart does) and starts it again on the same
-    /// port and store once it has been `away` for so long.
-    fn restart(mut self, away: Duration) -> Nats {
+    /// Stops the server (SIGTERM, as a rolling restart does), runs `meanwhile`, and starts it
+    /// again on the same port and store.
+    fn restart(mut self, meanwhile: impl FnOnce()) -> Nats {
         Command::new("kill")
             .args(["-TERM", &self.child.id().to_string()])
             .status()
             .unwrap();
         self.child.wait().unwrap();
         // The nodes' calls meanwhile wait or fail, and no job may be lost.
-        std::thread::sleep(away);
+        meanwhile();
         let (port, dir, secrets) = (
             self.port,
             std::mem::take(&mut self.dir),
@@ -332,7 +332,7 @@ fn nats_restarted_mid_run_loses_no_job() {
             .to_string()
     }));
 
-    let nats = nats.restart(Duration::from_secs(1));
+    let nats = nats.restart(|| std::thread::sleep(Duration::from_secs(1)));
     // Accepted while the server was away, or just after.
     jobs.push(
         submit(&api.base, "", &small_mesh(57))["job"]
@@ -361,11 +361,40 @@ fn a_worker_keeps_a_job_through_a_store_outage_longer_than_its_retries_and_finis
     wait_running(&api.base, job);
     // Away longer than a worker retries a store call (store::PATIENCE, 30 s): the cook ends
     // meanwhile, and storing its result gives up.
-    let nats = nats.restart(Duration::from_secs(40));
+    let nats = nats.restart(|| std::thread::sleep(Duration::from_secs(40)));
     let done = wait_for(&api.base, job, Duration::from_secs(120));
     assert_eq!(done["state"], "done", "{done}");
     assert_eq!(done["attempts"], 1, "{done}");
     assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 200);
+    drop(nats);
+}
+
+#[test]
+fn a_worker_stopped_while_its_store_is_away_leaves_its_job_queued_for_the_next() {
+    let Some(nats) = Nats::start("stopped") else { return };
+    let api = nats.api(&[]);
+    let first = nats.worker(&[ACK_WAIT]);
+    let job = submit(&api.base, SLOW, &slow_mesh())["job"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    wait_running(&api.base, &job);
+    // Stopped past store::PATIENCE (30 s) into the outage, when it waits for the store with
+    // the job: it must end without the store, and leave the job on the queue.
+    let nats = nats.restart(|| {
+        std::thread::sleep(Duration::from_secs(35));
+        let started = Instant::now();
+        assert!(first.terminate().success());
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "the worker took {:?} to stop",
+            started.elapsed()
+        );
+    });
+    let _second = nats.worker(&[ACK_WAIT]);
+    let done = wait_for(&api.base, &job, Duration::from_secs(120));
+    assert_eq!(done["state"], "done", "{done}");
+    assert_eq!(done["attempts"], 2, "{done}");
     drop(nats);
 }
 

@@ -1,7 +1,8 @@
 //! The cluster mode on a real `nats-server -js` (Debian package `nats-server`) on a loopback
 //! port, with API nodes (`serve --no-workers`) and worker nodes (`worker`) of the real binary:
 //! cross-node deduplication and cache, an API node killed, a worker killed mid-job, a job that
-//! keeps killing its workers, and nats-server restarted mid-run.
+//! keeps killing its workers, nats-server restarted mid-run, and away longer than a worker's
+//! store retries, with the worker kept at its job or stopped meanwhile.
 //!
 //! The server requires a user and password and speaks TLS only, with a certificate from a CA made
 //! for the test: every node signs in and checks the server against that CA.

@@ -186,13 +186,15 @@ fn submit(base: &str, query: &str, mesh: &[u8]) -> Value {
     }
 }
 
-/// Waits until the job is running somewhere.
-fn wait_running(base: &str, job: &str) {
+/// Submits the slow mesh and waits until its job is running somewhere: (job, key).
+fn slow_job_running(base: &str) -> (String, String) {
+    let accepted = submit(base, SLOW, &slow_mesh());
+    let [job, key] = ["job", "key"].map(|field| accepted[field].as_str().unwrap().to_string());
     let start = Instant::now();
     loop {
         let j = get(&format!("{base}/v1/jobs/{job}"), &[]).json();
         if j["state"] == "running" {
-            return;
+            return (job, key);
         }
         assert_eq!(j["state"], "queued", "{j}");
         assert!(start.elapsed() < Duration::from_secs(30), "job {job} never started");
@@ -267,14 +269,12 @@ fn a_worker_killed_mid_job_hands_it_to_another_which_finishes_it_once() {
     let Some(nats) = Nats::start("killed") else { return };
     let api = nats.api(&[]);
     let first = nats.worker(&[ACK_WAIT]);
-    let accepted = submit(&api.base, SLOW, &slow_mesh());
-    let (job, key) = (accepted["job"].as_str().unwrap(), accepted["key"].as_str().unwrap());
-    wait_running(&api.base, job);
+    let (job, key) = slow_job_running(&api.base);
     // Only now a second worker, so that the job was the first one's.
     let _second = nats.worker(&[ACK_WAIT]);
     first.kill_9();
 
-    let done = wait_for(&api.base, job, Duration::from_secs(120));
+    let done = wait_for(&api.base, &job, Duration::from_secs(120));
     assert_eq!(done["state"], "done", "{done}");
     assert_eq!(done["attempts"], 2, "{done}");
     assert_eq!(done["key"], key);
@@ -284,7 +284,7 @@ fn a_worker_killed_mid_job_hands_it_to_another_which_finishes_it_once() {
     std::thread::sleep(Duration::from_secs(3));
     assert_eq!(get(&format!("{}/v1/jobs/{job}", api.base), &[]).json(), done);
     let again = post(&format!("{}/v1/cook?format=obj{SLOW}", api.base), None, &slow_mesh());
-    assert_eq!((again.status, again.json()["job"].as_str()), (200, Some(job)));
+    assert_eq!((again.status, again.json()["job"].as_str()), (200, Some(job.as_str())));
 }
 
 #[test]
@@ -293,13 +293,11 @@ fn a_job_that_keeps_killing_its_workers_fails_after_max_deliver() {
     let api = nats.api(&["service.job_retention_s=1"]);
     let sets = [ACK_WAIT, "service.max_deliver=1"];
     let first = nats.worker(&sets);
-    let accepted = submit(&api.base, SLOW, &slow_mesh());
-    let job = accepted["job"].as_str().unwrap();
-    wait_running(&api.base, job);
+    let (job, _) = slow_job_running(&api.base);
     let _second = nats.worker(&sets);
     first.kill_9();
 
-    let failed = wait_for(&api.base, job, Duration::from_secs(60));
+    let failed = wait_for(&api.base, &job, Duration::from_secs(60));
     assert_eq!(failed["state"], "failed", "{failed}");
     assert_eq!(failed["error"]["code"], "worker_lost", "{failed}");
     assert!(failed["error"]["message"].as_str().unwrap().contains("started 1 times"));
@@ -322,9 +320,7 @@ fn nats_restarted_mid_run_loses_no_job() {
     let Some(nats) = Nats::start("restart") else { return };
     let api = nats.api(&[]);
     let _workers = (nats.worker(&[ACK_WAIT]), nats.worker(&[ACK_WAIT]));
-    let slow = submit(&api.base, SLOW, &slow_mesh());
-    let mut jobs = vec![slow["job"].as_str().unwrap().to_string()];
-    wait_running(&api.base, &jobs[0]);
+    let mut jobs = vec![slow_job_running(&api.base).0];
     // Small jobs queued behind it: the other worker is working through them as the server goes.
     jobs.extend((40..56).map(|i| {
         submit(&api.base, "", &small_mesh(i))["job"]
@@ -357,13 +353,11 @@ fn a_worker_keeps_a_job_through_a_store_outage_longer_than_its_retries_and_finis
     // One start allowed: a worker that gave the job back during the outage would see it handed
     // out a second time and fail it as worker_lost.
     let _worker = nats.worker(&[ACK_WAIT, "service.max_deliver=1"]);
-    let accepted = submit(&api.base, SLOW, &slow_mesh());
-    let (job, key) = (accepted["job"].as_str().unwrap(), accepted["key"].as_str().unwrap());
-    wait_running(&api.base, job);
+    let (job, key) = slow_job_running(&api.base);
     // Away longer than a worker retries a store call (store::PATIENCE, 30 s): the cook ends
     // meanwhile, and storing its result gives up.
     let nats = nats.restart(|| std::thread::sleep(Duration::from_secs(40)));
-    let done = wait_for(&api.base, job, Duration::from_secs(120));
+    let done = wait_for(&api.base, &job, Duration::from_secs(120));
     assert_eq!(done["state"], "done", "{done}");
     assert_eq!(done["attempts"], 1, "{done}");
     assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 200);
@@ -375,11 +369,7 @@ fn a_worker_stopped_while_its_store_is_away_leaves_its_job_queued_for_the_next()
     let Some(nats) = Nats::start("stopped") else { return };
     let api = nats.api(&[]);
     let first = nats.worker(&[ACK_WAIT]);
-    let job = submit(&api.base, SLOW, &slow_mesh())["job"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    wait_running(&api.base, &job);
+    let (job, _) = slow_job_running(&api.base);
     // Stopped past store::PATIENCE (30 s) into the outage, when it waits for the store with
     // the job: it must end without the store, and leave the job on the queue.
     let nats = nats.restart(|| {

@@ -2,7 +2,8 @@
 //! port, with API nodes (`serve --no-workers`) and worker nodes (`worker`) of the real binary:
 //! cross-node deduplication and cache, an API node killed, a worker killed mid-job, a job that
 //! keeps killing its workers, nats-server restarted mid-run, and away longer than a worker's
-//! store retries, with the worker kept at its job or stopped meanwhile.
+//! store retries, with the worker kept at its job or stopped meanwhile, and a running job
+//! cancelled through an API node.
 //!
 //! The server requires a user and password and speaks TLS only, with a certificate from a CA made
 //! for the test: every node signs in and checks the server against that CA.
@@ -350,10 +351,13 @@ fn nats_restarted_mid_run_loses_no_job() {
 fn a_worker_keeps_a_job_through_a_store_outage_longer_than_its_retries_and_finishes_it() {
     let Some(nats) = Nats::start("outage") else { return };
     let api = nats.api(&[]);
-    // One start allowed: a worker that gave the job back during the outage would see it handed
-    // out a second time and fail it as worker_lost.
-    let _worker = nats.worker(&[ACK_WAIT, "service.max_deliver=1"]);
+    // One start allowed: had the job gone back to the queue during the outage (given back, or
+    // its ack_wait run out), it would be handed out a second time, to this worker or to the
+    // idle one, and fail as worker_lost.
+    let sets = [ACK_WAIT, "service.max_deliver=1"];
+    let _worker = nats.worker(&sets);
     let (job, key) = slow_job_running(&api.base);
+    let _idle = nats.worker(&sets);
     // Away longer than a worker retries a store call (store::PATIENCE, 30 s): the cook ends
     // meanwhile, and storing its result gives up.
     let nats = nats.restart(|| std::thread::sleep(Duration::from_secs(40)));
@@ -495,4 +499,41 @@ fn workers_take_the_tokens_jobs_in_turn() {
         done_before <= 2,
         "{done_before} of busy's jobs finished before calm's one"
     );
+}
+
+#[test]
+fn a_running_job_cancelled_through_another_node_stops_and_stays_cancelled() {
+    let Some(nats) = Nats::start("cancel") else { return };
+    let api = nats.api(&[]);
+    // The default ack_wait: between the worker's reads of the record every ack_wait / 3 (10 s,
+    // longer than the cook), it meets the record only where it writes its progress.
+    let _worker = nats.worker(&[]);
+    let (job, key) = slow_job_running(&api.base);
+    let url = format!("{}/v1/jobs/{job}", api.base);
+    let cancelled = reply(agent().delete(&url).call());
+    assert_eq!(cancelled.status, 200, "{}", String::from_utf8_lossy(&cancelled.body));
+    let started = Instant::now();
+    let ended = loop {
+        let j = get(&url, &[]).json();
+        assert!(started.elapsed() < Duration::from_secs(60), "{j}");
+        if j["state"] != "failed" {
+            panic!("the cancelled job went back to {j}");
+        }
+        // Stopped: the worker has taken it off the queue.
+        if get(&format!("{}/healthz", api.base), &[]).json()["queue_depth"] == 0 {
+            break j;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    println!(
+        "the worker let go of the cancelled job {:.2} s after its DELETE",
+        started.elapsed().as_secs_f64()
+    );
+    assert_eq!(ended["error"]["code"], "cancelled", "{ended}");
+    std::thread::sleep(Duration::from_secs(2));
+    assert_eq!(get(&url, &[]).json(), ended);
+    assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 404);
+    let next = submit(&api.base, "", &small_mesh(60));
+    let done = wait_for(&api.base, next["job"].as_str().unwrap(), Duration::from_secs(60));
+    assert_eq!(done["state"], "done", "{done}");
 }

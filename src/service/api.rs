@@ -809,14 +809,20 @@ async fn cancel_job(
             format!("job {id} was filed by another token: only its own or an `admin` token may cancel it"),
         ));
     }
-    if job.state.is_finished() {
-        return Err(ApiError::new(
+    let ended = |job: Job| {
+        ApiError::new(
             StatusCode::CONFLICT,
             "finished",
             format!("job {id} has already ended ({})", job.state.name()),
-        ));
+        )
+    };
+    if job.state.is_finished() {
+        return Err(ended(job));
     }
-    Ok(Json(state.service.cancel(job).await.map_err(ApiError::storage)?))
+    match state.service.cancel(job).await.map_err(ApiError::storage)? {
+        Ok(cancelled) => Ok(Json(cancelled)),
+        Err(job) => Err(ended(job)),
+    }
 }
 
 #[utoipa::path(

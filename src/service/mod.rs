@@ -468,11 +468,7 @@ impl Service {
         if job.state.is_finished() {
             // Cancelled while queued, or its worker stopped between finishing it and taking it
             // off the queue.
-            if job.state == JobState::Failed {
-                self.drop_input(&job).await;
-            }
-            let _ = delivery.finish().await;
-            return Ran::Ended;
+            return self.let_go(&job, delivery.as_ref()).await;
         }
         job.attempts = delivery.deliveries();
         job.updated_ms = now_ms();
@@ -490,12 +486,14 @@ impl Service {
             Ok(())
         } else {
             job.state = JobState::Running;
+            // Recorded, so that a restart knows this job was interrupted once already.
+            match self.store.put_job_unless_ended(&job).await {
+                Ok(None) => {}
+                Ok(Some(ended)) => return self.let_go(&ended, delivery.as_ref()).await,
+                Err(e) => tracing::error!(job = job.id, error = %e, "cannot record the job as running"),
+            }
             self.live.lock().unwrap().insert(id.clone(), job.clone());
             self.update_gauges().await;
-            // Recorded, so that a restart knows this job was interrupted once already.
-            if let Err(e) = self.store.put_job(&job).await {
-                tracing::error!(job = job.id, error = %e, "cannot record the job as running");
-            }
             let (progress, tending, stop) = self.tend(&job, Arc::clone(delivery));
             let stored = match self.cook(&job, progress, stop).await {
                 Ok(made) => self.store_result(&job, made).await,
@@ -512,6 +510,16 @@ impl Service {
             }
         };
         self.end(job, outcome, delivery.as_ref()).await
+    }
+
+    /// Takes a delivered job that has ended already off the queue, and a failed one's input
+    /// with it: nothing cooks it again.
+    async fn let_go(&self, ended: &Job, delivery: &dyn Delivery) -> Ran {
+        if ended.state == JobState::Failed {
+            self.drop_input(ended).await;
+        }
+        let _ = delivery.finish().await;
+        Ran::Ended
     }
 
     /// Stores a cooked job's result, retrying while the store does not answer.
@@ -537,7 +545,9 @@ impl Service {
     /// Records how a job ended and takes it off the queue. A failed job's input goes once that
     /// is recorded: nothing will cook it again, and a new submission uploads it anew. Where the
     /// store does not answer, the job stays queued, its input kept, to end the same way again.
+    /// Where the job was ended meanwhile (cancelled through another node), that end stands.
     async fn end(&self, mut job: Job, outcome: Result<(), JobError>, delivery: &dyn Delivery) -> Ran {
+        let made_result = outcome.is_ok();
         match outcome {
             Ok(()) => {
                 job.state = JobState::Done;
@@ -550,13 +560,26 @@ impl Service {
             }
         }
         job.updated_ms = now_ms();
-        let recorded = patiently("record the finished job", &job.id, || self.store.put_job(&job)).await;
+        let recorded = patiently("record the finished job", &job.id, || {
+            self.store.put_job_unless_ended(&job)
+        })
+        .await;
         self.live.lock().unwrap().remove(&job.id);
-        if recorded.is_err() {
-            return Ran::StoreDown;
+        match recorded {
+            Err(_) => return Ran::StoreDown,
+            Ok(None) => {}
+            Ok(Some(ended)) => {
+                tracing::info!(
+                    job = job.id,
+                    state = ended.state.name(),
+                    "the job was ended meanwhile; that end stands"
+                );
+                job = ended;
+            }
         }
         metrics::counter!("occluder_jobs_finished_total", "state" => job.state.name()).increment(1);
-        if job.state == JobState::Failed {
+        // A result made is kept with its input, whatever the record says.
+        if job.state == JobState::Failed && !made_result {
             if job.kind == JobKind::Level {
                 self.drop_level_parts(&job).await;
             }
@@ -566,7 +589,7 @@ impl Service {
         if let Err(e) = delivery.finish().await {
             tracing::warn!(job = job.id, error = %e, "cannot take the finished job off the queue; it comes back and ends at once");
         }
-        if job.state == JobState::Done {
+        if made_result {
             // A finished job's input is only needed to remake a broken result; it may go with
             // its result when the cache is full.
             self.evict().await;
@@ -653,8 +676,10 @@ impl Service {
                             break;
                         }
                         let job = updates.borrow_and_update().clone();
-                        if let Err(e) = store.put_progress(&job).await {
-                            tracing::debug!(job = job.id, error = %e, "progress not written");
+                        match store.put_progress(&job).await {
+                            Ok(None) => {}
+                            Ok(Some(_)) => raise.store(true, std::sync::atomic::Ordering::Relaxed),
+                            Err(e) => tracing::debug!(job = job.id, error = %e, "progress not written"),
                         }
                     }
                     _ = ticks.tick() => {
@@ -662,7 +687,7 @@ impl Service {
                             tracing::warn!(error = %e, "cannot keep the job alive on the queue");
                         }
                         if let Ok(Some(recorded)) = store.job(&id).await
-                            && recorded.error.is_some_and(|e| e.code == CANCELLED)
+                            && recorded.state.is_finished()
                         {
                             raise.store(true, std::sync::atomic::Ordering::Relaxed);
                         }
@@ -742,15 +767,18 @@ impl Service {
 
     /// Cancels a job that has not finished: it ends `failed` with code `cancelled`. A queued job
     /// never starts; one running here stops at its next stage; one running on another node
-    /// stops when that node next reads its record. Returns the job as recorded.
-    pub async fn cancel(&self, mut job: Job) -> StoreResult<Job> {
+    /// stops when that node next writes or reads its record. Returns the job as recorded, or
+    /// `Err` with its record where it ended first.
+    pub async fn cancel(&self, mut job: Job) -> StoreResult<Result<Job, Job>> {
         job.state = JobState::Failed;
         job.error = Some(JobError {
             code: CANCELLED.into(),
             message: "cancelled by DELETE /v1/jobs/{id}".replace("{id}", &job.id),
         });
         job.updated_ms = now_ms();
-        self.store.put_job(&job).await?;
+        if let Some(ended) = self.store.put_job_unless_ended(&job).await? {
+            return Ok(Err(ended));
+        }
         if let Some(stop) = self
             .stops
             .lock()
@@ -761,7 +789,7 @@ impl Service {
             stop.store(true, std::sync::atomic::Ordering::Relaxed);
         }
         metrics::counter!("occluder_jobs_cancelled_total").increment(1);
-        Ok(job)
+        Ok(Ok(job))
     }
 
     fn set_progress(&self, running: &Job, progress: &watch::Sender<Job>, stage: &str, done: f64) {

@@ -113,10 +113,14 @@ pub trait Delivery: Send + Sync {
 pub trait Store: Send + Sync + 'static {
     /// Writes a job record and makes it durable before returning.
     async fn put_job(&self, job: &Job) -> StoreResult<()>;
-    /// Writes a running job's progress where other nodes read it. The embedded store keeps
-    /// progress in the process's memory only, and does nothing here.
-    async fn put_progress(&self, _job: &Job) -> StoreResult<()> {
-        Ok(())
+    /// Writes a record of a job that others may end meanwhile (a cancel through any node, or
+    /// a worker that had it before), in one step with the check that they have not: where the
+    /// stored record has ended, it stays, and is returned instead. Durable, as `put_job`.
+    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Option<Job>>;
+    /// Writes a running job's progress where other nodes read it, as `put_job_unless_ended`.
+    /// The embedded store keeps progress in the process's memory only, and writes nothing.
+    async fn put_progress(&self, _job: &Job) -> StoreResult<Option<Job>> {
+        Ok(None)
     }
     async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
     /// Every job record: those queued or running, and those ended but not yet collected.

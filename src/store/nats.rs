@@ -421,8 +421,35 @@ impl Store for NatsStore {
         Ok(())
     }
 
-    async fn put_progress(&self, job: &Job) -> StoreResult<()> {
-        self.put_job(job).await
+    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Option<Job>> {
+        let bytes = serde_json::to_vec(job).expect("jobs serialize");
+        // Another write between the read and this one, which checks the revision read: again.
+        for _ in 0..8 {
+            let raced = match self.jobs.entry(&job.id).await.map_err(backend)? {
+                Some(entry) if entry.operation == kv::Operation::Put => {
+                    let stored: Job = decode(&entry.value)?;
+                    if stored.state.is_finished() {
+                        return Ok(Some(stored));
+                    }
+                    match self.jobs.update(&job.id, bytes.clone().into(), entry.revision).await {
+                        Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => true,
+                        written => written.map(|_| false).map_err(backend)?,
+                    }
+                }
+                _ => match self.jobs.create(&job.id, bytes.clone().into()).await {
+                    Err(e) if e.kind() == kv::CreateErrorKind::AlreadyExists => true,
+                    written => written.map(|_| false).map_err(backend)?,
+                },
+            };
+            if !raced {
+                return Ok(None);
+            }
+        }
+        Err(backend(format!("the record of job {} keeps changing", job.id)))
+    }
+
+    async fn put_progress(&self, job: &Job) -> StoreResult<Option<Job>> {
+        self.put_job_unless_ended(job).await
     }
 
     async fn job(&self, id: &str) -> StoreResult<Option<Job>> {

@@ -208,6 +208,26 @@ impl Store for SledStore {
         Ok(())
     }
 
+    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Option<Job>> {
+        let bytes = serde_json::to_vec(job).expect("jobs serialize");
+        loop {
+            let stored = self.jobs.get(&job.id).map_err(backend)?;
+            if let Some(stored) = stored.as_deref().map(decode::<Job>).transpose()?
+                && stored.state.is_finished()
+            {
+                return Ok(Some(stored));
+            }
+            let swapped = self
+                .jobs
+                .compare_and_swap(&job.id, stored, Some(bytes.as_slice()))
+                .map_err(backend)?;
+            if swapped.is_ok() {
+                self.durable().await?;
+                return Ok(None);
+            }
+        }
+    }
+
     async fn job(&self, id: &str) -> StoreResult<Option<Job>> {
         self.jobs.get(id).map_err(backend)?.map(|v| decode(&v)).transpose()
     }
@@ -352,5 +372,50 @@ impl Store for SledStore {
     async fn flush(&self) -> StoreResult<()> {
         self.durable().await?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::job::{JobError, JobKind, new_id};
+
+    #[tokio::test]
+    async fn a_job_ended_meanwhile_keeps_its_end() {
+        let dir = std::env::temp_dir().join(format!("occluder-cook-sled-ended-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let store = SledStore::open(&dir, 1 << 20).unwrap();
+        let mut job = Job {
+            id: new_id(),
+            kind: JobKind::Mesh,
+            key: "key".into(),
+            state: JobState::Queued,
+            stage: None,
+            progress: 0.0,
+            error: None,
+            settings: serde_json::Value::Null,
+            created_ms: now_ms(),
+            updated_ms: now_ms(),
+            attempts: 0,
+            owner: None,
+        };
+        // Not stored yet, then queued: written.
+        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), None);
+        job.state = JobState::Running;
+        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), None);
+        assert_eq!(store.job(&job.id).await.unwrap(), Some(job.clone()));
+        // Cancelled meanwhile: a later write of its progress or end leaves the cancel.
+        let mut cancelled = job.clone();
+        cancelled.state = JobState::Failed;
+        cancelled.error = Some(JobError {
+            code: "cancelled".into(),
+            message: "cancelled".into(),
+        });
+        store.put_job(&cancelled).await.unwrap();
+        job.state = JobState::Done;
+        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), Some(cancelled.clone()));
+        assert_eq!(store.job(&job.id).await.unwrap(), Some(cancelled));
+        drop(store);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

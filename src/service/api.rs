@@ -6,8 +6,8 @@ use crate::config::{self, ConfigError};
 use crate::key::cache_key;
 use crate::level::{InstanceSpec, Level, Manifest, MeshRef, is_key, parse_manifest};
 use crate::mesh::{Format, load_bytes};
-use crate::store::Input;
 use crate::store::job::{Job, JobError};
+use crate::store::{Input, Unwritten};
 use axum::Json;
 use axum::body::Body;
 use axum::extract::multipart::{Multipart, MultipartError, MultipartRejection};
@@ -732,12 +732,19 @@ fn submitted(key: &str, outcome: Result<Submitted, SubmitError>) -> Result<Respo
     }
 }
 
+fn unknown_job(id: &str) -> ApiError {
+    ApiError::new(StatusCode::NOT_FOUND, "unknown_job", format!("no job {id}"))
+}
+
 async fn find_job(service: &Service, id: &str) -> Result<Job, ApiError> {
-    let unknown = || ApiError::new(StatusCode::NOT_FOUND, "unknown_job", format!("no job {id}"));
     if !crate::store::job::is_id(id) {
-        return Err(unknown());
+        return Err(unknown_job(id));
     }
-    service.job(id).await.map_err(ApiError::storage)?.ok_or_else(unknown)
+    service
+        .job(id)
+        .await
+        .map_err(ApiError::storage)?
+        .ok_or_else(|| unknown_job(id))
 }
 
 /// The recent jobs, newest first.
@@ -821,7 +828,8 @@ async fn cancel_job(
     }
     match state.service.cancel(job).await.map_err(ApiError::storage)? {
         Ok(cancelled) => Ok(Json(cancelled)),
-        Err(job) => Err(ended(job)),
+        Err(Unwritten::Ended(job)) => Err(ended(*job)),
+        Err(Unwritten::Gone) => Err(unknown_job(&id)),
     }
 }
 

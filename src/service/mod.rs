@@ -15,7 +15,7 @@ pub mod tls;
 use crate::config::Settings;
 use crate::cook::{CookError, cook_with_progress};
 use crate::store::job::{self, Job, JobError, JobKind, JobState, now_ms};
-use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, patiently};
+use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, Unwritten, patiently};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -455,11 +455,7 @@ impl Service {
         let id = delivery.job_id().to_string();
         let mut job = match self.store.job(&id).await {
             Ok(Some(job)) => job,
-            Ok(None) => {
-                tracing::error!(job = id, "queued job not found; dropped from the queue");
-                let _ = delivery.finish().await;
-                return Ran::Ended;
-            }
+            Ok(None) => return self.let_go(Unwritten::Gone, delivery.as_ref()).await,
             Err(e) => {
                 tracing::error!(job = id, error = %e, "cannot read a delivered job");
                 return Ran::StoreDown;
@@ -468,7 +464,7 @@ impl Service {
         if job.state.is_finished() {
             // Cancelled while queued, or its worker stopped between finishing it and taking it
             // off the queue.
-            return self.let_go(&job, delivery.as_ref()).await;
+            return self.let_go(Unwritten::Ended(Box::new(job)), delivery.as_ref()).await;
         }
         job.attempts = delivery.deliveries();
         job.updated_ms = now_ms();
@@ -488,8 +484,8 @@ impl Service {
             job.state = JobState::Running;
             // Recorded, so that a restart knows this job was interrupted once already.
             match self.store.put_job_unless_ended(&job).await {
-                Ok(None) => {}
-                Ok(Some(ended)) => return self.let_go(&ended, delivery.as_ref()).await,
+                Ok(Ok(())) => {}
+                Ok(Err(unwritten)) => return self.let_go(unwritten, delivery.as_ref()).await,
                 Err(e) => tracing::error!(job = job.id, error = %e, "cannot record the job as running"),
             }
             self.live.lock().unwrap().insert(id.clone(), job.clone());
@@ -512,11 +508,15 @@ impl Service {
         self.end(job, outcome, delivery.as_ref()).await
     }
 
-    /// Takes a delivered job that has ended already off the queue, and a failed one's input
-    /// with it: nothing cooks it again.
-    async fn let_go(&self, ended: &Job, delivery: &dyn Delivery) -> Ran {
-        if ended.state == JobState::Failed {
-            self.drop_input(ended).await;
+    /// Takes a delivered job that has ended already, or has no record, off the queue, and a
+    /// failed one's input with it: nothing cooks it again.
+    async fn let_go(&self, unwritten: Unwritten, delivery: &dyn Delivery) -> Ran {
+        match unwritten {
+            Unwritten::Ended(job) if job.state == JobState::Failed => self.drop_input(&job).await,
+            Unwritten::Ended(_) => {}
+            Unwritten::Gone => {
+                tracing::error!(job = delivery.job_id(), "queued job not found; dropped from the queue");
+            }
         }
         let _ = delivery.finish().await;
         Ran::Ended
@@ -567,14 +567,20 @@ impl Service {
         self.live.lock().unwrap().remove(&job.id);
         match recorded {
             Err(_) => return Ran::StoreDown,
-            Ok(None) => {}
-            Ok(Some(ended)) => {
+            Ok(Ok(())) => {}
+            Ok(Err(Unwritten::Ended(ended))) => {
                 tracing::info!(
                     job = job.id,
                     state = ended.state.name(),
                     "the job was ended meanwhile; that end stands"
                 );
-                job = ended;
+                job = *ended;
+            }
+            Ok(Err(Unwritten::Gone)) => {
+                tracing::warn!(
+                    job = job.id,
+                    "the job's record is gone (ended and collected); its end is not recorded"
+                );
             }
         }
         metrics::counter!("occluder_jobs_finished_total", "state" => job.state.name()).increment(1);
@@ -677,8 +683,8 @@ impl Service {
                         }
                         let job = updates.borrow_and_update().clone();
                         match store.put_progress(&job).await {
-                            Ok(None) => {}
-                            Ok(Some(_)) => raise.store(true, std::sync::atomic::Ordering::Relaxed),
+                            Ok(Ok(())) => {}
+                            Ok(Err(_)) => raise.store(true, std::sync::atomic::Ordering::Relaxed),
                             Err(e) => tracing::debug!(job = job.id, error = %e, "progress not written"),
                         }
                     }
@@ -686,8 +692,8 @@ impl Service {
                         if let Err(e) = delivery.keep_alive().await {
                             tracing::warn!(error = %e, "cannot keep the job alive on the queue");
                         }
-                        if let Ok(Some(recorded)) = store.job(&id).await
-                            && recorded.state.is_finished()
+                        if let Ok(recorded) = store.job(&id).await
+                            && recorded.is_none_or(|r| r.state.is_finished())
                         {
                             raise.store(true, std::sync::atomic::Ordering::Relaxed);
                         }
@@ -768,16 +774,16 @@ impl Service {
     /// Cancels a job that has not finished: it ends `failed` with code `cancelled`. A queued job
     /// never starts; one running here stops at its next stage; one running on another node
     /// stops when that node next writes or reads its record. Returns the job as recorded, or
-    /// `Err` with its record where it ended first.
-    pub async fn cancel(&self, mut job: Job) -> StoreResult<Result<Job, Job>> {
+    /// why it could not be cancelled: it ended first, or its record is gone.
+    pub async fn cancel(&self, mut job: Job) -> StoreResult<Result<Job, Unwritten>> {
         job.state = JobState::Failed;
         job.error = Some(JobError {
             code: CANCELLED.into(),
             message: "cancelled by DELETE /v1/jobs/{id}".replace("{id}", &job.id),
         });
         job.updated_ms = now_ms();
-        if let Some(ended) = self.store.put_job_unless_ended(&job).await? {
-            return Ok(Err(ended));
+        if let Err(unwritten) = self.store.put_job_unless_ended(&job).await? {
+            return Ok(Err(unwritten));
         }
         if let Some(stop) = self
             .stops

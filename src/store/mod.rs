@@ -96,6 +96,15 @@ impl Claim {
     }
 }
 
+/// Why [`Store::put_job_unless_ended`] left a job's record as it was.
+#[derive(Debug, PartialEq)]
+pub enum Unwritten {
+    /// The job has ended: its record.
+    Ended(Box<Job>),
+    /// Its record is gone: it ended, and was collected.
+    Gone,
+}
+
 /// A job handed to a worker. Until [`Delivery::finish`] the queue may hand it out again: after
 /// a restart (sled), or once its worker stops keeping it alive (NATS).
 #[async_trait]
@@ -113,14 +122,14 @@ pub trait Delivery: Send + Sync {
 pub trait Store: Send + Sync + 'static {
     /// Writes a job record and makes it durable before returning.
     async fn put_job(&self, job: &Job) -> StoreResult<()>;
-    /// Writes a record of a job that others may end meanwhile (a cancel through any node, or
-    /// a worker that had it before), in one step with the check that they have not: where the
-    /// stored record has ended, it stays, and is returned instead. Durable, as `put_job`.
-    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Option<Job>>;
+    /// Writes over the record of a job that others may end meanwhile (a cancel through any
+    /// node, or a worker that had it before), in one step with the check that they have not:
+    /// where the stored record has ended, or is gone, it stays. Durable, as `put_job`.
+    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Result<(), Unwritten>>;
     /// Writes a running job's progress where other nodes read it, as `put_job_unless_ended`.
     /// The embedded store keeps progress in the process's memory only, and writes nothing.
-    async fn put_progress(&self, _job: &Job) -> StoreResult<Option<Job>> {
-        Ok(None)
+    async fn put_progress(&self, _job: &Job) -> StoreResult<Result<(), Unwritten>> {
+        Ok(Ok(()))
     }
     async fn job(&self, id: &str) -> StoreResult<Option<Job>>;
     /// Every job record: those queued or running, and those ended but not yet collected.

@@ -9,7 +9,7 @@
 //! killing workers ends as a failed job instead of vanishing.
 
 use super::job::{Job, now_ms};
-use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, Unwritten, seal, unseal};
 use crate::config::ServiceSettings;
 use async_nats::jetstream::{self, AckKind, consumer, kv, object_store, stream};
 use async_trait::async_trait;
@@ -421,34 +421,29 @@ impl Store for NatsStore {
         Ok(())
     }
 
-    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Option<Job>> {
+    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Result<(), Unwritten>> {
         let bytes = serde_json::to_vec(job).expect("jobs serialize");
         // Another write between the read and this one, which checks the revision read: again.
         for _ in 0..8 {
-            let raced = match self.jobs.entry(&job.id).await.map_err(backend)? {
-                Some(entry) if entry.operation == kv::Operation::Put => {
-                    let stored: Job = decode(&entry.value)?;
-                    if stored.state.is_finished() {
-                        return Ok(Some(stored));
-                    }
-                    match self.jobs.update(&job.id, bytes.clone().into(), entry.revision).await {
-                        Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => true,
-                        written => written.map(|_| false).map_err(backend)?,
-                    }
-                }
-                _ => match self.jobs.create(&job.id, bytes.clone().into()).await {
-                    Err(e) if e.kind() == kv::CreateErrorKind::AlreadyExists => true,
-                    written => written.map(|_| false).map_err(backend)?,
-                },
+            let Some(entry) = self.jobs.entry(&job.id).await.map_err(backend)? else {
+                return Ok(Err(Unwritten::Gone));
             };
-            if !raced {
-                return Ok(None);
+            if entry.operation != kv::Operation::Put {
+                return Ok(Err(Unwritten::Gone));
+            }
+            let stored: Job = decode(&entry.value)?;
+            if stored.state.is_finished() {
+                return Ok(Err(Unwritten::Ended(Box::new(stored))));
+            }
+            match self.jobs.update(&job.id, bytes.clone().into(), entry.revision).await {
+                Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => continue,
+                written => return written.map(|_| Ok(())).map_err(backend),
             }
         }
         Err(backend(format!("the record of job {} keeps changing", job.id)))
     }
 
-    async fn put_progress(&self, job: &Job) -> StoreResult<Option<Job>> {
+    async fn put_progress(&self, job: &Job) -> StoreResult<Result<(), Unwritten>> {
         self.put_job_unless_ended(job).await
     }
 

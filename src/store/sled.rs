@@ -2,7 +2,7 @@
 //! memory, rebuilt on open from the jobs a previous run left unfinished.
 
 use super::job::{Job, JobState, now_ms};
-use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, seal, unseal};
+use super::{Claim, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, Unwritten, seal, unseal};
 use async_trait::async_trait;
 use std::collections::{HashMap, VecDeque};
 use std::path::Path;
@@ -208,22 +208,23 @@ impl Store for SledStore {
         Ok(())
     }
 
-    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Option<Job>> {
+    async fn put_job_unless_ended(&self, job: &Job) -> StoreResult<Result<(), Unwritten>> {
         let bytes = serde_json::to_vec(job).expect("jobs serialize");
         loop {
-            let stored = self.jobs.get(&job.id).map_err(backend)?;
-            if let Some(stored) = stored.as_deref().map(decode::<Job>).transpose()?
-                && stored.state.is_finished()
-            {
-                return Ok(Some(stored));
+            let Some(stored) = self.jobs.get(&job.id).map_err(backend)? else {
+                return Ok(Err(Unwritten::Gone));
+            };
+            let record: Job = decode(&stored)?;
+            if record.state.is_finished() {
+                return Ok(Err(Unwritten::Ended(Box::new(record))));
             }
             let swapped = self
                 .jobs
-                .compare_and_swap(&job.id, stored, Some(bytes.as_slice()))
+                .compare_and_swap(&job.id, Some(stored), Some(bytes.as_slice()))
                 .map_err(backend)?;
             if swapped.is_ok() {
                 self.durable().await?;
-                return Ok(None);
+                return Ok(Ok(()));
             }
         }
     }
@@ -399,10 +400,12 @@ mod tests {
             attempts: 0,
             owner: None,
         };
-        // Not stored yet, then queued: written.
-        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), None);
+        // Not stored: not written.
+        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), Err(Unwritten::Gone));
+        assert_eq!(store.job(&job.id).await.unwrap(), None);
+        store.put_job(&job).await.unwrap();
         job.state = JobState::Running;
-        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), None);
+        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), Ok(()));
         assert_eq!(store.job(&job.id).await.unwrap(), Some(job.clone()));
         // Cancelled meanwhile: a later write of its progress or end leaves the cancel.
         let mut cancelled = job.clone();
@@ -413,7 +416,10 @@ mod tests {
         });
         store.put_job(&cancelled).await.unwrap();
         job.state = JobState::Done;
-        assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), Some(cancelled.clone()));
+        assert_eq!(
+            store.put_job_unless_ended(&job).await.unwrap(),
+            Err(Unwritten::Ended(Box::new(cancelled.clone())))
+        );
         assert_eq!(store.job(&job.id).await.unwrap(), Some(cancelled));
         drop(store);
         let _ = std::fs::remove_dir_all(&dir);

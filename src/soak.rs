@@ -10,7 +10,7 @@ use crate::config::Settings;
 use crate::mesh::{Format, load_bytes};
 use crate::service::auth::{self, Scope};
 use serde::Serialize;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -48,7 +48,12 @@ pub struct SoakReport {
     pub busy: u64,
     pub jobs_accepted: usize,
     pub jobs_done: usize,
+    /// Failed, besides those cancelled.
     pub jobs_failed: usize,
+    /// Ended `failed` with code `cancelled`.
+    pub jobs_cancelled: usize,
+    /// Jobs a DELETE answered 200 that ended otherwise.
+    pub cancels_undone: usize,
     /// Accepted jobs that never ended, or that the server no longer knows.
     pub jobs_lost: usize,
     pub occluders_fetched: u64,
@@ -78,6 +83,12 @@ impl SoakReport {
             return Some(format!(
                 "{} of {} accepted jobs were lost",
                 self.jobs_lost, self.jobs_accepted
+            ));
+        }
+        if self.cancels_undone > 0 {
+            return Some(format!(
+                "{} of {} cancelled jobs ended otherwise",
+                self.cancels_undone, self.jobs_cancelled
             ));
         }
         if self.wrong_bytes + self.wrong_keys > 0 {
@@ -114,6 +125,10 @@ struct Shared {
     submitted: Vec<Submitted>,
     /// Indices into `submitted` not seen ended yet.
     pending: Vec<usize>,
+    /// Indices into `submitted` that a DELETE cancelled (answered 200), and those seen
+    /// ended otherwise than cancelled: a job in both is a cancel undone, whichever came first.
+    cancelled: HashSet<usize>,
+    ended_otherwise: HashSet<usize>,
     /// Keys of done jobs, and the BLAKE3 of the GLB first fetched for each.
     done: Vec<String>,
     hashes: HashMap<String, blake3::Hash>,
@@ -328,7 +343,10 @@ impl<'a> Client<'a> {
             }
             request.send(body)
         } else {
-            let mut request = self.agent.get(url);
+            let mut request = match method {
+                "DELETE" => self.agent.delete(url),
+                _ => self.agent.get(url),
+            };
             if let Some(value) = &authorization {
                 request = request.header("Authorization", value);
             }
@@ -350,7 +368,8 @@ impl<'a> Client<'a> {
             0..25 => "cached_get",
             25..40 => "duplicate",
             40..55 => "poll",
-            55..80 => "cached_get",
+            55 => "cancel",
+            56..80 => "cached_get",
             80..88 => "malformed",
             88..92 => "oversized",
             _ => "unauthenticated",
@@ -360,6 +379,7 @@ impl<'a> Client<'a> {
             "new_mesh" => self.new_mesh(base, shared),
             "duplicate" => self.duplicate(base, shared),
             "poll" => self.poll(base, shared),
+            "cancel" => self.cancel(base, shared),
             "cached_get" => self.cached_get(base, shared, started),
             "malformed" => {
                 let garbage: Vec<u8> = (0..1 + self.pick(4096)).map(|_| self.pick(256) as u8).collect();
@@ -478,29 +498,47 @@ impl<'a> Client<'a> {
         Outcome::of(answer, |status| matches!(status, 200 | 202))
     }
 
+    /// A job not seen ended yet: its index and id.
+    fn pick_pending(&self, shared: &Mutex<Shared>) -> Option<(usize, String)> {
+        let shared = shared.lock().unwrap();
+        (!shared.pending.is_empty()).then(|| {
+            let index = shared.pending[self.pick(shared.pending.len())];
+            (index, shared.submitted[index].job.clone())
+        })
+    }
+
     /// The state of a job not seen ended yet; a done one's key joins the cached GETs.
     fn poll(&self, base: &str, shared: &Mutex<Shared>) -> Outcome {
-        let picked = {
-            let shared = shared.lock().unwrap();
-            (!shared.pending.is_empty()).then(|| {
-                let slot = self.pick(shared.pending.len());
-                let s = &shared.submitted[shared.pending[slot]];
-                (shared.pending[slot], s.job.clone())
-            })
-        };
-        let Some((index, job)) = picked else {
+        let Some((index, job)) = self.pick_pending(shared) else {
             return Outcome::Expected;
         };
         let answer = self.send("GET", &format!("{base}/v1/jobs/{job}"), Some(self.token), "", b"");
         if let Some((200, body)) = &answer {
-            let reply: serde_json::Value = serde_json::from_slice(body).unwrap_or_default();
-            self.note_state(shared, index, reply["state"].as_str().unwrap_or_default());
+            self.note_state(shared, index, body);
         }
         Outcome::of(answer, |status| status == 200)
     }
 
-    /// Records a job's end: done (its key then served) or failed.
-    fn note_state(&self, shared: &Mutex<Shared>, index: usize, state: &str) {
+    /// DELETE of a job not seen ended yet: cancelled (200), or it ended first (409).
+    fn cancel(&self, base: &str, shared: &Mutex<Shared>) -> Outcome {
+        let Some((index, job)) = self.pick_pending(shared) else {
+            return Outcome::Expected;
+        };
+        let answer = self.send("DELETE", &format!("{base}/v1/jobs/{job}"), Some(self.token), "", b"");
+        if let Some((200, _)) = &answer {
+            let mut shared = shared.lock().unwrap();
+            shared.cancelled.insert(index);
+            if shared.ended_otherwise.contains(&index) {
+                shared.report.cancels_undone += 1;
+            }
+        }
+        Outcome::of(answer, |status| matches!(status, 200 | 409))
+    }
+
+    /// Records a job's end from its record: done (its key then served), cancelled or failed.
+    fn note_state(&self, shared: &Mutex<Shared>, index: usize, record: &[u8]) {
+        let record: serde_json::Value = serde_json::from_slice(record).unwrap_or_default();
+        let state = record["state"].as_str().unwrap_or_default();
         if !matches!(state, "done" | "failed") {
             return;
         }
@@ -509,6 +547,14 @@ impl<'a> Client<'a> {
             return;
         };
         shared.pending.swap_remove(slot);
+        if state == "failed" && record["error"]["code"] == "cancelled" {
+            shared.report.jobs_cancelled += 1;
+            return;
+        }
+        shared.ended_otherwise.insert(index);
+        if shared.cancelled.contains(&index) {
+            shared.report.cancels_undone += 1;
+        }
         if state == "done" {
             shared.report.jobs_done += 1;
             let key = shared.submitted[index].key.clone();
@@ -566,10 +612,7 @@ impl<'a> Client<'a> {
             }
             for (index, job) in pending {
                 match self.send("GET", &format!("{base}/v1/jobs/{job}"), Some(self.token), "", b"") {
-                    Some((200, body)) => {
-                        let reply: serde_json::Value = serde_json::from_slice(&body).unwrap_or_default();
-                        self.note_state(shared, index, reply["state"].as_str().unwrap_or_default());
-                    }
+                    Some((200, body)) => self.note_state(shared, index, &body),
                     Some((404, _)) => {
                         let mut shared = shared.lock().unwrap();
                         shared.pending.retain(|&i| i != index);

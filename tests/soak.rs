@@ -1,5 +1,6 @@
 //! `soak` for a minute against the real binary: mixed load, the server killed with SIGKILL
-//! and restarted twice, and still no job lost, no wrong bytes and no answer off the contract.
+//! and restarted twice, and still no job lost, no cancel undone, no wrong bytes and no answer
+//! off the contract.
 
 mod common;
 use common::cli;
@@ -27,10 +28,12 @@ fn a_minute_of_mixed_load_and_two_kills_loses_nothing() {
     assert!(report["restarts"].as_u64() >= Some(2), "{report}");
     assert!(report["jobs_accepted"].as_u64() > Some(10), "{report}");
     assert_eq!(report["jobs_lost"], 0, "{report}");
-    assert_eq!(
-        report["jobs_done"].as_u64().unwrap() + report["jobs_failed"].as_u64().unwrap(),
-        report["jobs_accepted"].as_u64().unwrap()
-    );
+    let ended: u64 = ["jobs_done", "jobs_failed", "jobs_cancelled"]
+        .iter()
+        .map(|field| report[field].as_u64().unwrap())
+        .sum();
+    assert_eq!(ended, report["jobs_accepted"].as_u64().unwrap(), "{report}");
+    assert_eq!(report["cancels_undone"], 0, "{report}");
     assert_eq!(report["wrong_bytes"], 0, "{report}");
     assert_eq!(report["wrong_keys"], 0, "{report}");
     assert!(report["occluders_fetched"].as_u64() > Some(100), "{report}");
@@ -39,6 +42,7 @@ fn a_minute_of_mixed_load_and_two_kills_loses_nothing() {
         "new_mesh",
         "duplicate",
         "poll",
+        "cancel",
         "cached_get",
         "malformed",
         "oversized",

@@ -73,7 +73,8 @@ pub fn run(args: SoakArgs) -> Result<()> {
     let requests: u64 = report.requests.values().sum();
     println!(
         "{:.0} s, {} restarts (SIGKILL), {requests} requests ({} without an answer, {} refused as busy): \
-         {} jobs accepted, {} done, {} failed, {} lost; {} occluders fetched, {} with wrong bytes, {} wrong keys; \
+         {} jobs accepted, {} done, {} failed, {} cancelled ({} ended otherwise), {} lost; \
+         {} occluders fetched, {} with wrong bytes, {} wrong keys; \
          {} unexpected answers; RSS from minute 2 on: highest peak {:.2}x the lowest",
         report.seconds,
         report.restarts,
@@ -82,6 +83,8 @@ pub fn run(args: SoakArgs) -> Result<()> {
         report.jobs_accepted,
         report.jobs_done,
         report.jobs_failed,
+        report.jobs_cancelled,
+        report.cancels_undone,
         report.jobs_lost,
         report.occluders_fetched,
         report.wrong_bytes,

@@ -425,12 +425,11 @@ impl Store for NatsStore {
         let bytes = serde_json::to_vec(job).expect("jobs serialize");
         // Another write between the read and this one, which checks the revision read: again.
         for _ in 0..8 {
-            let Some(entry) = self.jobs.entry(&job.id).await.map_err(backend)? else {
+            // No entry, or a delete marker.
+            let entry = self.jobs.entry(&job.id).await.map_err(backend)?;
+            let Some(entry) = entry.filter(|e| e.operation == kv::Operation::Put) else {
                 return Ok(Err(Unwritten::Gone));
             };
-            if entry.operation != kv::Operation::Put {
-                return Ok(Err(Unwritten::Gone));
-            }
             let stored: Job = decode(&entry.value)?;
             if stored.state.is_finished() {
                 return Ok(Err(Unwritten::Ended(Box::new(stored))));

@@ -203,6 +203,15 @@ fn slow_job_running(base: &str) -> (String, String) {
     }
 }
 
+/// Waits until the job is done and its occluder is served: its record.
+fn wait_done_and_served(base: &str, job: &str, limit: Duration) -> Value {
+    let done = wait_for(base, job, limit);
+    assert_eq!(done["state"], "done", "{done}");
+    let key = done["key"].as_str().unwrap();
+    assert_eq!(get(&format!("{base}/v1/occluders/{key}"), &[]).status, 200);
+    done
+}
+
 /// A torus that takes a few seconds to cook at this resolution: long enough to kill its worker.
 const SLOW: &str = "&resolution=192";
 
@@ -275,12 +284,9 @@ fn a_worker_killed_mid_job_hands_it_to_another_which_finishes_it_once() {
     let _second = nats.worker(&[ACK_WAIT]);
     first.kill_9();
 
-    let done = wait_for(&api.base, &job, Duration::from_secs(120));
-    assert_eq!(done["state"], "done", "{done}");
+    let done = wait_done_and_served(&api.base, &job, Duration::from_secs(120));
     assert_eq!(done["attempts"], 2, "{done}");
     assert_eq!(done["key"], key);
-    let glb = get(&format!("{}/v1/occluders/{key}", api.base), &[]);
-    assert_eq!(glb.status, 200);
     // One final state: the job stays done, and a repost is the same job's result.
     std::thread::sleep(Duration::from_secs(3));
     assert_eq!(get(&format!("{}/v1/jobs/{job}", api.base), &[]).json(), done);
@@ -339,10 +345,7 @@ fn nats_restarted_mid_run_loses_no_job() {
             .to_string(),
     );
     for job in &jobs {
-        let done = wait_for(&api.base, job, Duration::from_secs(180));
-        assert_eq!(done["state"], "done", "{done}");
-        let key = done["key"].as_str().unwrap();
-        assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 200);
+        wait_done_and_served(&api.base, job, Duration::from_secs(180));
     }
     drop(nats);
 }
@@ -361,10 +364,9 @@ fn a_worker_keeps_a_job_through_a_store_outage_longer_than_its_retries_and_finis
     // Away longer than a worker retries a store call (store::PATIENCE, 30 s): the cook ends
     // meanwhile, and storing its result gives up.
     let nats = nats.restart(|| std::thread::sleep(Duration::from_secs(40)));
-    let done = wait_for(&api.base, &job, Duration::from_secs(120));
-    assert_eq!(done["state"], "done", "{done}");
+    let done = wait_done_and_served(&api.base, &job, Duration::from_secs(120));
     assert_eq!(done["attempts"], 1, "{done}");
-    assert_eq!(get(&format!("{}/v1/occluders/{key}", api.base), &[]).status, 200);
+    assert_eq!(done["key"], key);
     drop(nats);
 }
 

@@ -156,7 +156,8 @@ impl Service {
         Ok(service)
     }
 
-    /// Files a job for `input` under `key`, unless the result exists or a job holds the key.
+    /// Files a job for `input` under `key`, unless the result exists (answered with a done job)
+    /// or a job holds the key.
     pub async fn submit(
         &self,
         key: &str,
@@ -164,10 +165,6 @@ impl Service {
         settings: serde_json::Value,
         owner: Option<String>,
     ) -> Result<Submitted, SubmitError> {
-        if let Some(meta) = self.result_meta(key).await? {
-            metrics::counter!("occluder_cache_hits_total").increment(1);
-            return Ok(Submitted::Cached(meta.job));
-        }
         let now = now_ms();
         let kind = if input.format == LEVEL_FORMAT {
             JobKind::Level
@@ -188,6 +185,10 @@ impl Service {
             attempts: 0,
             owner,
         };
+        if let Some(meta) = self.result_meta(key).await? {
+            metrics::counter!("occluder_cache_hits_total").increment(1);
+            return Ok(Submitted::Cached(self.serving(meta, job).await?));
+        }
         // Claim the key first, so that an identical submission arriving now, on any node, joins
         // this job. A claim left by a job that has ended (its node died) is taken over.
         while let Some(holder) = self.store.claim(key, &job.id).await? {
@@ -242,6 +243,27 @@ impl Service {
         // The depth read above, plus this job: no second round trip to the store.
         metrics::gauge!("occluder_queue_depth").set((waiting + 1) as f64);
         Ok(Submitted::Queued(job.id))
+    }
+
+    /// The job to answer a submission of a stored result with: the one that made it, unless
+    /// that one was cancelled after storing it, or its record is gone. Then `job`, this
+    /// submission's, is recorded as done, so that its status says what the result is.
+    async fn serving(&self, made: ResultMeta, mut job: Job) -> StoreResult<String> {
+        match self.store.job(&made.job).await? {
+            Some(maker) if maker.state != JobState::Failed => Ok(made.job),
+            maker => {
+                tracing::info!(
+                    job = job.id,
+                    made_by = made.job,
+                    maker = maker.map_or("gone", |m| m.state.name()),
+                    "a stored result's maker did not end done; this submission is recorded done"
+                );
+                job.state = JobState::Done;
+                job.progress = 1.0;
+                self.store.put_job(&job).await?;
+                Ok(job.id)
+            }
+        }
     }
 
     /// The job that holds a claim. Its record follows the claim within moments: a young claim
@@ -1258,7 +1280,77 @@ pub async fn work(settings: Settings) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::{Lru, StoreError, Unmade};
+    use super::{Lru, Service, StoreError, Submitted, Unmade};
+    use crate::store::job::{Job, JobError, JobKind, JobState, new_id, now_ms};
+    use crate::store::{Input, ResultMeta, Store, sled::SledStore};
+    use std::sync::Arc;
+
+    /// A cancel can land after the worker stored the result and before it recorded the job
+    /// done; the result stays. A later submission of the same mesh is served it as a done job,
+    /// not as the cancelled one.
+    #[tokio::test]
+    async fn a_result_whose_maker_was_cancelled_is_served_as_done() {
+        let dir = std::env::temp_dir().join(format!("occluder-cook-cancelled-maker-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let store: Arc<dyn Store> = Arc::new(SledStore::open(&dir, 1 << 20).unwrap());
+        let service = Service::start(Arc::clone(&store), crate::config::load(None, &[]).unwrap())
+            .await
+            .unwrap();
+        let maker = Job {
+            id: new_id(),
+            kind: JobKind::Mesh,
+            key: "key".into(),
+            state: JobState::Failed,
+            stage: None,
+            progress: 0.5,
+            error: Some(JobError {
+                code: "cancelled".into(),
+                message: "cancelled".into(),
+            }),
+            settings: serde_json::Value::Null,
+            created_ms: now_ms(),
+            updated_ms: now_ms(),
+            attempts: 1,
+            owner: None,
+        };
+        store.put_job(&maker).await.unwrap();
+        let made = ResultMeta {
+            job: maker.id.clone(),
+            bytes: 8,
+            created_ms: now_ms(),
+        };
+        store.put_result("key", b"glb!", b"{}", &made).await.unwrap();
+        let input = || Input {
+            format: "obj".into(),
+            bytes: b"v 0 0 0".to_vec(),
+        };
+        let submit = || service.submit("key", input(), serde_json::Value::Null, Some("ci".into()));
+        let Submitted::Cached(served) = submit().await.unwrap() else {
+            panic!("a stored result was queued again");
+        };
+        assert_ne!(served, maker.id, "served as the cancelled job");
+        let record = store.job(&served).await.unwrap().expect("the served job is recorded");
+        assert_eq!(
+            (record.state, record.key.as_str(), record.owner.as_deref()),
+            (JobState::Done, "key", Some("ci"))
+        );
+        assert_eq!(
+            store.job(&maker.id).await.unwrap(),
+            Some(maker.clone()),
+            "the cancel stands"
+        );
+        // A maker that ended done is the job served, as before.
+        store
+            .put_job(&Job {
+                state: JobState::Done,
+                error: None,
+                ..maker.clone()
+            })
+            .await
+            .unwrap();
+        assert!(matches!(submit().await.unwrap(), Submitted::Cached(id) if id == maker.id));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn lru_finds_the_least_recently_used_key_not_kept() {

@@ -3,6 +3,7 @@ mod cli;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use occluder_cook::service::client;
+use std::io::IsTerminal;
 use std::sync::Mutex;
 
 /// Conservative occluders for game meshes: a few dozen triangles inside the mesh that cover
@@ -74,6 +75,8 @@ fn main() {
     };
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        // Colour codes only for a terminal: not in a log file, a pipe or a container's log.
+        .with_ansi(std::io::stderr().is_terminal())
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_level.into()))
         .without_time()
         .init();

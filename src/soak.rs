@@ -1,7 +1,9 @@
 //! `soak`: the real server under mixed load for a set time, killed with SIGKILL and started
 //! again on a schedule, to show that it loses no job, serves no wrong bytes and holds its memory.
 //!
-//! The server is this binary's `serve` on a loopback port, with tokens, over a scratch folder.
+//! The server is this binary's `serve` on a loopback port, with tokens, over a scratch folder;
+//! or, with worker nodes, a cluster on a NATS server: that `serve` as the API node, running no
+//! cook itself, and this binary's `worker`s, killed in turn with it.
 //! Client threads mix new meshes (whose keys are computed here too), duplicates, job polls,
 //! cached GETs, malformed and oversized bodies, and calls without a valid token; each answer is
 //! checked against what the API promises. After the load, every accepted job is waited for.
@@ -11,6 +13,7 @@ use crate::mesh::{Format, load_bytes};
 use crate::service::auth::{self, Scope};
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap, HashSet};
+use std::ffi::OsStr;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -20,7 +23,8 @@ use std::time::{Duration, Instant};
 
 pub struct SoakOptions {
     pub duration: Duration,
-    /// Time between SIGKILLs of the server.
+    /// Time between SIGKILLs of a node: the server, or with worker nodes, it and each of them
+    /// in turn.
     pub restart_every: Duration,
     /// Client threads.
     pub clients: usize,
@@ -28,15 +32,20 @@ pub struct SoakOptions {
     pub dir: PathBuf,
     /// The binary to run as the server.
     pub binary: PathBuf,
-    /// `service.*` settings for the server, as `KEY=VALUE`.
+    /// `service.*` settings for the server and the worker nodes, as `KEY=VALUE`.
     pub server_settings: Vec<String>,
+    /// `worker` processes on the NATS server that `service.nats_url` names (it must be set);
+    /// the API node then runs no cook.
+    pub worker_nodes: usize,
 }
 
 /// What a soak saw.
 #[derive(Debug, Default, Serialize)]
 pub struct SoakReport {
     pub seconds: f64,
+    /// SIGKILLs of the API node (the server), and of worker nodes.
     pub restarts: usize,
+    pub worker_restarts: usize,
     /// Requests sent, by kind.
     pub requests: BTreeMap<String, u64>,
     /// Answers the API does not allow for that request, by `kind status`.
@@ -154,9 +163,16 @@ pub fn soak(options: &SoakOptions) -> Result<SoakReport, String> {
     let (token, entry) = auth::new_token("soak", &[Scope::Read, Scope::Cook])?;
     auth::append(&tokens, entry)?;
     let settings = crate::config::load(None, &[]).map_err(|e| e.to_string())?;
-    let mut server = start(options, &tokens, "127.0.0.1:0")?;
+    let mut nodes = Nodes {
+        server: start(options, &tokens, "127.0.0.1:0")?,
+        workers: Vec::new(),
+        kills: 0,
+    };
+    for k in 0..options.worker_nodes {
+        nodes.workers.push(start_worker(options, k)?);
+    }
     let shared = Mutex::new(Shared::default());
-    let base = Mutex::new(server.base.clone());
+    let base = Mutex::new(nodes.server.base.clone());
     let stop = AtomicBool::new(false);
     let started = Instant::now();
     std::thread::scope(|scope| {
@@ -173,21 +189,23 @@ pub fn soak(options: &SoakOptions) -> Result<SoakReport, String> {
         let mut last_restart = Instant::now();
         while started.elapsed() < options.duration {
             std::thread::sleep(Duration::from_millis(500));
-            if let Some(kib) = rss_kib(server.child.id()) {
+            if let Some(kib) = rss_kib(nodes.server.child.id()) {
                 shared.lock().unwrap().rss.push((started.elapsed().as_secs_f64(), kib));
             }
             if last_restart.elapsed() >= options.restart_every && started.elapsed() < options.duration {
-                let _ = server.child.kill();
-                let _ = server.child.wait();
-                match start(options, &tokens, &server.listen) {
-                    Ok(next) => server = next,
+                let restarted = nodes.restart_next(options, &tokens);
+                let mut shared = shared.lock().unwrap();
+                match restarted {
                     Err(e) => {
                         stop.store(true, Ordering::Relaxed);
                         return Err(e);
                     }
+                    Ok(true) => {
+                        *base.lock().unwrap() = nodes.server.base.clone();
+                        shared.report.restarts += 1;
+                    }
+                    Ok(false) => shared.report.worker_restarts += 1,
                 }
-                *base.lock().unwrap() = server.base.clone();
-                shared.lock().unwrap().report.restarts += 1;
                 last_restart = Instant::now();
             }
         }
@@ -195,11 +213,11 @@ pub fn soak(options: &SoakOptions) -> Result<SoakReport, String> {
         Ok(())
     })?;
     let client = Client::new(&token, &settings, u64::MAX);
-    client.drain(&server.base, &shared, Duration::from_secs(300));
-    let _ = Command::new("kill")
-        .args(["-TERM", &server.child.id().to_string()])
-        .status();
-    let _ = server.child.wait();
+    client.drain(&nodes.server.base, &shared, Duration::from_secs(300));
+    for child in nodes.all() {
+        let _ = Command::new("kill").args(["-TERM", &child.id().to_string()]).status();
+        let _ = child.wait();
+    }
     let mut shared = shared.into_inner().unwrap();
     shared.report.seconds = started.elapsed().as_secs_f64();
     shared.report.minutes = minutes(&shared.gets, &shared.rss);
@@ -210,11 +228,6 @@ pub fn soak(options: &SoakOptions) -> Result<SoakReport, String> {
 
 /// Starts `serve` on `listen` and waits for its ready line.
 fn start(options: &SoakOptions, tokens: &Path, listen: &str) -> Result<Server, String> {
-    let log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(options.dir.join("server.log"))
-        .map_err(|e| format!("cannot write the server log: {e}"))?;
     let sets = [
         "service.auth=tokens".to_string(),
         format!("service.tokens_file={}", tokens.display()),
@@ -222,34 +235,110 @@ fn start(options: &SoakOptions, tokens: &Path, listen: &str) -> Result<Server, S
         "service.token_submissions_per_s=1000".into(),
         "service.token_submission_burst=1000".into(),
     ];
+    let data = options.dir.join("data");
+    let mut args = [
+        OsStr::new("serve"),
+        "--listen".as_ref(),
+        listen.as_ref(),
+        "--data-dir".as_ref(),
+        data.as_os_str(),
+    ]
+    .to_vec();
+    if options.worker_nodes > 0 {
+        args.push("--no-workers".as_ref());
+    }
+    let (child, address) = spawn_node(options, &args, &sets, ("the server", "server"), "listening on ")?;
+    Ok(Server {
+        base: format!("http://{address}"),
+        listen: address,
+        child,
+    })
+}
+
+/// Starts worker node `k` and waits for its ready line.
+fn start_worker(options: &SoakOptions, k: usize) -> Result<Child, String> {
+    let (what, log) = (format!("worker node {k}"), format!("worker-{k}"));
+    let (child, _) = spawn_node(options, &["worker".as_ref()], &[], (&what, &log), "worker ready")?;
+    Ok(child)
+}
+
+/// Runs this binary with `args`, the settings `sets` and then the soak's own, its stderr
+/// appended to `<log>.log`, and waits for the first line it prints, which must start with
+/// `ready`: returns it with the rest of that line. A node that prints another is killed.
+fn spawn_node(
+    options: &SoakOptions,
+    args: &[&OsStr],
+    sets: &[String],
+    (what, log): (&str, &str),
+    ready: &str,
+) -> Result<(Child, String), String> {
+    let log = options.dir.join(format!("{log}.log"));
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log)
+        .map_err(|e| format!("cannot write {}: {e}", log.display()))?;
     let mut command = Command::new(&options.binary);
-    command
-        .args(["serve", "--listen", listen, "--data-dir"])
-        .arg(options.dir.join("data"));
+    command.args(args);
     for set in sets.iter().chain(&options.server_settings) {
         command.args(["--set", set]);
     }
     let mut child = command
         .stdout(Stdio::piped())
-        .stderr(log)
+        .stderr(file)
         .spawn()
         .map_err(|e| format!("cannot run {}: {e}", options.binary.display()))?;
     let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("piped"))
-        .read_line(&mut line)
-        .map_err(|e| e.to_string())?;
-    let Some(address) = line.trim().strip_prefix("listening on ") else {
+    let _ = BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line);
+    match line.trim().strip_prefix(ready) {
+        Some(rest) => Ok((child, rest.trim().to_string())),
+        None => {
+            let _ = child.kill();
+            let _ = child.wait();
+            Err(format!("{what} did not start (see {})", log.display()))
+        }
+    }
+}
+
+/// The soaked processes. Any still running when the soak ends early are killed.
+struct Nodes {
+    server: Server,
+    workers: Vec<Child>,
+    /// SIGKILLs so far.
+    kills: usize,
+}
+
+impl Nodes {
+    fn all(&mut self) -> impl Iterator<Item = &mut Child> {
+        self.workers.iter_mut().chain([&mut self.server.child])
+    }
+
+    /// Kills the next node with SIGKILL and starts it again: the server (then true), then each
+    /// worker node, in turn.
+    fn restart_next(&mut self, options: &SoakOptions, tokens: &Path) -> Result<bool, String> {
+        let victim = self.kills % (1 + self.workers.len());
+        self.kills += 1;
+        let child = match victim {
+            0 => &mut self.server.child,
+            k => &mut self.workers[k - 1],
+        };
         let _ = child.kill();
-        return Err(format!(
-            "the server did not start (see {})",
-            options.dir.join("server.log").display()
-        ));
-    };
-    Ok(Server {
-        listen: address.to_string(),
-        base: format!("http://{address}"),
-        child,
-    })
+        let _ = child.wait();
+        match victim {
+            0 => self.server = start(options, tokens, &self.server.listen)?,
+            k => self.workers[k - 1] = start_worker(options, k - 1)?,
+        }
+        Ok(victim == 0)
+    }
+}
+
+impl Drop for Nodes {
+    fn drop(&mut self) {
+        for child in self.all() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
 }
 
 /// A process's resident memory, from /proc.

@@ -2,8 +2,8 @@
 //! port, with API nodes (`serve --no-workers`) and worker nodes (`worker`) of the real binary:
 //! cross-node deduplication and cache, an API node killed, a worker killed mid-job, a job that
 //! keeps killing its workers, nats-server restarted mid-run, and away longer than a worker's
-//! store retries, with the worker kept at its job or stopped meanwhile, and a running job
-//! cancelled through an API node.
+//! store retries, with the worker kept at its job or stopped meanwhile, a running job cancelled
+//! through an API node, and a minute of `soak` with every node killed in turn.
 //!
 //! The server requires a user and password and speaks TLS only, with a certificate from a CA made
 //! for the test: every node signs in and checks the server against that CA.
@@ -538,4 +538,21 @@ fn a_running_job_cancelled_through_another_node_stops_and_stays_cancelled() {
     let next = submit(&api.base, "", &small_mesh(60));
     let done = wait_for(&api.base, next["job"].as_str().unwrap(), Duration::from_secs(60));
     assert_eq!(done["state"], "done", "{done}");
+}
+
+/// `soak --worker-nodes 2` on this server: a minute of mixed load (cancels included) on an API
+/// node and two worker nodes, each killed with SIGKILL in turn, and still nothing lost or undone.
+#[test]
+fn a_minute_of_soak_on_a_cluster_whose_nodes_are_killed_in_turn_loses_nothing() {
+    let Some(nats) = Nats::start("soak") else { return };
+    let sets: Vec<String> = [format!("service.nats_url={}", nats.url()), ACK_WAIT.to_string()]
+        .into_iter()
+        .chain(nats.credentials())
+        .flat_map(|set| ["--set".to_string(), set])
+        .collect();
+    let mut args = vec!["--restart-every", "12s", "--worker-nodes", "2"];
+    args.extend(sets.iter().map(String::as_str));
+    let report = common::soak_kept_its_promises("nats", &args);
+    assert!(report["restarts"].as_u64() >= Some(1), "{report}");
+    assert!(report["worker_restarts"].as_u64() >= Some(2), "{report}");
 }

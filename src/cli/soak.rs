@@ -9,7 +9,8 @@ pub struct SoakArgs {
     /// How long the load runs: seconds, or with a unit (90s, 10m, 1h).
     #[arg(long, default_value = "10m", value_parser = duration)]
     duration: Duration,
-    /// Time between SIGKILLs of the server, which is started again at once on the same port.
+    /// Time between SIGKILLs of the server, which is started again at once on the same port (with
+    /// --worker-nodes: of the server and each worker node, in turn).
     #[arg(long, default_value = "2m", value_parser = duration)]
     restart_every: Duration,
     /// Client threads.
@@ -22,9 +23,13 @@ pub struct SoakArgs {
     /// Writes the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
-    /// A `service.*` setting for the soaked server, KEY=VALUE (repeatable).
+    /// A `service.*` setting for the soaked server and worker nodes, KEY=VALUE (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     server_settings: Vec<String>,
+    /// Soak a cluster: this many `worker` nodes beside the server, which runs no cook, all on the
+    /// NATS server that `--set service.nats_url=…` names.
+    #[arg(long, default_value_t = 0)]
+    worker_nodes: usize,
 }
 
 /// `90`, `90s`, `10m` or `1h`.
@@ -54,6 +59,16 @@ pub fn run(args: SoakArgs) -> Result<()> {
     if let Some(other) = args.server_settings.iter().find(|s| !s.starts_with("service.")) {
         bail!("--set {other}: only service.* settings (the soak computes keys with the default cook settings)");
     }
+    if args.worker_nodes > 16 {
+        bail!("--worker-nodes must be at most 16");
+    }
+    let on_nats = args
+        .server_settings
+        .iter()
+        .any(|s| s.strip_prefix("service.nats_url=").is_some_and(|url| !url.is_empty()));
+    if args.worker_nodes > 0 && !on_nats {
+        bail!("--worker-nodes needs --set service.nats_url=…: worker nodes take their jobs from NATS");
+    }
     let _ = std::fs::remove_dir_all(&args.dir);
     let options = SoakOptions {
         duration: args.duration,
@@ -62,6 +77,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
         dir: args.dir,
         binary: std::env::current_exe().context("cannot find this binary")?,
         server_settings: args.server_settings,
+        worker_nodes: args.worker_nodes,
     };
     let report = soak(&options).map_err(anyhow::Error::msg)?;
     for minute in &report.minutes {
@@ -72,12 +88,13 @@ pub fn run(args: SoakArgs) -> Result<()> {
     }
     let requests: u64 = report.requests.values().sum();
     println!(
-        "{:.0} s, {} restarts (SIGKILL), {requests} requests ({} without an answer, {} refused as busy): \
+        "{:.0} s, {} restarts (SIGKILL) of the server and {} of worker nodes, {requests} requests ({} without an answer, {} refused as busy): \
          {} jobs accepted, {} done, {} failed, {} cancelled ({} ended otherwise), {} lost; \
          {} occluders fetched, {} with wrong bytes, {} wrong keys; \
          {} unexpected answers; RSS from minute 2 on: highest peak {:.2}x the lowest",
         report.seconds,
         report.restarts,
+        report.worker_restarts,
         report.unavailable.values().sum::<u64>(),
         report.busy,
         report.jobs_accepted,

@@ -134,6 +134,56 @@ pub fn cli(args: &[&str]) -> (i32, String, String) {
     )
 }
 
+/// Runs `soak` for a minute with 3 clients and `args` besides, and checks what it reports: no job
+/// lost, every accepted one ended, no cancel undone, no wrong bytes or keys, no answer off the
+/// contract, and every kind of request sent. Returns the report.
+pub fn soak_kept_its_promises(name: &str, args: &[&str]) -> serde_json::Value {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-soak-{name}-{}", std::process::id()));
+    let json = dir.with_extension("json");
+    let mut all = vec!["soak", "--duration", "60s", "--clients", "3", "--dir"];
+    all.extend([dir.to_str().unwrap(), "--json", json.to_str().unwrap()]);
+    all.extend(args);
+    let (code, stdout, stderr) = cli(&all);
+    println!("{stdout}");
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert!(report["jobs_accepted"].as_u64() > Some(10), "{report}");
+    assert_eq!(report["jobs_lost"], 0, "{report}");
+    let ended: u64 = ["jobs_done", "jobs_failed", "jobs_cancelled"]
+        .iter()
+        .map(|field| report[field].as_u64().unwrap())
+        .sum();
+    assert_eq!(ended, report["jobs_accepted"].as_u64().unwrap(), "{report}");
+    assert_eq!(report["cancels_undone"], 0, "{report}");
+    assert_eq!(report["wrong_bytes"], 0, "{report}");
+    assert_eq!(report["wrong_keys"], 0, "{report}");
+    assert!(report["occluders_fetched"].as_u64() > Some(100), "{report}");
+    assert_eq!(report["unexpected"], serde_json::json!({}), "{report}");
+    for kind in [
+        "new_mesh",
+        "duplicate",
+        "poll",
+        "cancel",
+        "cached_get",
+        "malformed",
+        "oversized",
+        "unauthenticated",
+    ] {
+        assert!(
+            report["requests"][kind].as_u64() > Some(0),
+            "no {kind} requests: {report}"
+        );
+    }
+    let minute = &report["minutes"][0];
+    assert!(
+        minute["cached_gets"].as_u64() > Some(0) && minute["peak_rss_mib"].as_f64() > Some(1.0),
+        "{report}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_file(&json);
+    report
+}
+
 /// An ASCII FBX 7.4 cube in [0, 1]³, authored Z-up in metres, placed by a node mirrored in x and
 /// moved 10 along x.
 pub const FBX_MIRRORED_CUBE: &str = r#"; FBX 7.4.0 project file

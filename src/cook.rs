@@ -2,8 +2,8 @@
 //! they alone cover the silhouette), voxelize, classify, expand boxes, refine, find quads and
 //! patches, select by silhouette, merge, and optionally evaluate.
 //!
-//! [`cook_with_progress`] and [`cook_voxels`] are the list of stages; each is a function from
-//! named inputs to a named output, and [`Run`] times it, reports its progress and, for a stage
+//! [`cook_with_progress`] and `cook_voxels` are the list of stages; each is a function from
+//! named inputs to a named output, and `Run` times it, reports its progress and, for a stage
 //! with a GPU twin, falls back to the CPU where the device cannot do it.
 
 mod report;

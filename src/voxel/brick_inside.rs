@@ -7,7 +7,7 @@
 //! runs in three steps and never visits a voxel outside a brick of surface:
 //! 1. [`entries`]: each brick alone, what each of its rows meets first entering the brick
 //!    along each way (twin: `shaders/brick_inside.wgsl`, [`gpu::entries`]).
-//! 2. [`link`]: along each line of bricks, what each row meets past each brick (a row with no
+//! 2. `link`: along each line of bricks, what each row meets past each brick (a row with no
 //!    surface in a brick passes on what the next brick's row meets). Bricks with no surface
 //!    are never stored: a voxel in one takes its answers from the next brick of each line.
 //! 3. [`classify`]: each brick alone, each voxel's bit from its rows' marches, starting from

@@ -36,7 +36,7 @@ pub const MAX_SIDE: f64 = 8192.0;
 const BRICK_HALF: f64 = 0.5 + 1e-2;
 
 /// A voxel's bit when the surface in it faces +x, -x, +y, -y, +z or -z (the normal's component
-/// along that way is over [`FACING`]); [`TOUCHED`] marks any surface at all.
+/// along that way is over `FACING`); [`TOUCHED`] marks any surface at all.
 pub const FACES: [u8; 6] = [1, 2, 4, 8, 16, 32];
 pub const TOUCHED: u8 = 64;
 const FACING: f64 = 0.3;

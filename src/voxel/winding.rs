@@ -257,7 +257,7 @@ impl Curtain {
     }
 
     /// [`Curtain::terms`] near enough, each with a bound on how far it may be from it: loops
-    /// of edges far from all the points count as dipoles ([`far_field`]), the rest exactly.
+    /// of edges far from all the points count as dipoles (`far_field`), the rest exactly.
     /// The bound takes in a billionth for rounding, far more than the exact sum's own.
     pub fn bounded_terms(&self, points: &[DVec3]) -> (Vec<f64>, Vec<f64>) {
         let far_field = self

@@ -15,7 +15,7 @@ const VIEW_ROWS: usize = 1600;
 /// The corners of a grid of `corner_dims` (z fastest) that a view sees, one bit each, testing
 /// only those set in `needed`: (word, its bits) for each word with a bit set. `rows` holds five
 /// rows a view as the shader reads them; `depths` the views' images of `pixels` × `pixels`, one
-/// after another, and `tiles` the farthest depth of each of their tiles of [`TILE`] × [`TILE`]
+/// after another, and `tiles` the farthest depth of each of their tiles of `TILE` × `TILE`
 /// pixels.
 /// `Unsupported` where an input exceeds a binding or the shader's arrays.
 pub fn seen_corners(

@@ -65,6 +65,8 @@ pub struct SoakReport {
     pub cancels_undone: usize,
     /// Accepted jobs that never ended, or that the server no longer knows.
     pub jobs_lost: usize,
+    /// Jobs seen ended that were started more than once: a kill stopped their first cook.
+    pub jobs_started_again: usize,
     pub occluders_fetched: u64,
     /// Fetches whose bytes differed from the first fetch of the same key.
     pub wrong_bytes: u64,
@@ -636,6 +638,9 @@ impl<'a> Client<'a> {
             return;
         };
         shared.pending.swap_remove(slot);
+        if record["attempts"].as_u64() > Some(1) {
+            shared.report.jobs_started_again += 1;
+        }
         if state == "failed" && record["error"]["code"] == "cancelled" {
             shared.report.jobs_cancelled += 1;
             return;

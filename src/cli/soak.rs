@@ -89,7 +89,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
     let requests: u64 = report.requests.values().sum();
     println!(
         "{:.0} s, {} restarts (SIGKILL) of the server and {} of worker nodes, {requests} requests ({} without an answer, {} refused as busy): \
-         {} jobs accepted, {} done, {} failed, {} cancelled ({} ended otherwise), {} lost; \
+         {} jobs accepted, {} done, {} failed, {} cancelled ({} ended otherwise), {} lost, {} started again after a kill; \
          {} occluders fetched, {} with wrong bytes, {} wrong keys; \
          {} unexpected answers; RSS from minute 2 on: highest peak {:.2}x the lowest",
         report.seconds,
@@ -103,6 +103,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
         report.jobs_cancelled,
         report.cancels_undone,
         report.jobs_lost,
+        report.jobs_started_again,
         report.occluders_fetched,
         report.wrong_bytes,
         report.wrong_keys,

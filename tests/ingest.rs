@@ -516,3 +516,36 @@ fn meshopt_compressed_views_are_decoded() {
     let message = refusal(inflated.to_string().as_bytes(), "inflated count");
     assert!(message.contains("more than the codec gives"), "{message}");
 }
+
+/// Meshes past the scale the cook's arithmetic holds are refused in one line: a vertex past
+/// ±1e30 (f32 sums of such overflow) or a mesh under 1e-12 across. Those at the ends of the range
+/// cook as the same mesh at scale 1 does.
+#[test]
+fn meshes_too_far_out_or_too_small_are_refused_and_the_ends_of_the_range_cook_alike() {
+    let cube_obj = |size: f32, offset: f32| {
+        let cube = common::cuboid(Vec3::splat(offset), Vec3::splat(offset + size), &[]);
+        common::http::obj_text(&cube)
+    };
+    let read = |obj: Vec<u8>| load_bytes(&obj, Format::Obj, None, &IngestLimits::default());
+    for (size, offset) in [(1e37, 2e38), (2e31, -1e31)] {
+        let err = read(cube_obj(size, offset)).expect_err("refused");
+        assert!(matches!(err, IngestError::FarVertex(..)), "{err}");
+        assert!(err.to_string().contains("past ±1e30"), "{err}");
+    }
+    for size in [1e-13, 1e-16, 1e-40] {
+        let err = read(cube_obj(size, 0.0)).expect_err("refused");
+        assert!(matches!(err, IngestError::TooSmall(_)), "{err}");
+        assert!(!err.to_string().contains('\n'));
+    }
+    let cook = |obj: Vec<u8>| {
+        let (mesh, stats) = read(obj).expect("read");
+        let cooked = occluder_cook::cook::cook(mesh, stats, 0.0, &common::defaults(), true).expect("cooks");
+        let quality = cooked.report.quality.expect("evaluated");
+        (cooked.report.occluder.triangles, quality.coverage, quality.false_pixels)
+    };
+    let unit = cook(cube_obj(1.0, 0.0));
+    assert_eq!(unit.2, 0);
+    for (size, offset) in [(2e29, -1e29), (1e-11, 0.0)] {
+        assert_eq!(cook(cube_obj(size, offset)), unit, "a cube {size} across at {offset}");
+    }
+}

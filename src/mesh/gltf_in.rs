@@ -28,6 +28,8 @@ pub fn read(bytes: &[u8], base_dir: Option<&Path>, limits: &IngestLimits) -> Res
     Err(match geometry {
         Some(Err(
             e @ (IngestError::NonFinite(..)
+            | IngestError::FarVertex(..)
+            | IngestError::TooSmall(_)
             | IngestError::IndexOutOfRange { .. }
             | IngestError::NodeCycle(_)
             | IngestError::TooLarge(_)),

@@ -82,6 +82,10 @@ pub enum IngestError {
     Malformed { format: &'static str, message: String },
     #[error("non-finite vertex coordinate ({0}) in vertex {1}")]
     NonFinite(String, usize),
+    #[error("vertex {1} at ({0}) lies past ±{MAX_COORDINATE:e}, where the cook's arithmetic overflows")]
+    FarVertex(String, usize),
+    #[error("the mesh is {0:.1e} across, smaller than the {MIN_EXTENT:e} the cook resolves: scale it up")]
+    TooSmall(f64),
     #[error("vertex index {index} out of range: the primitive has {count} vertices")]
     IndexOutOfRange { index: u64, count: usize },
     #[error("the scene graph has a cycle through node {0}")]
@@ -356,10 +360,20 @@ pub fn weld_positions(positions: &[Vec3]) -> (Vec<Vec3>, Vec<u32>) {
     (distinct, remap)
 }
 
+/// Largest coordinate the cook takes: sums and products of f32 coordinates stay finite well
+/// past it (a cube 2e25 across cooks as one 2 across does; one out at 2e38 does not).
+pub const MAX_COORDINATE: f32 = 1e30;
+/// Smallest mesh the cook takes, along its longest side: framing and rasterizing keep absolute
+/// floors below it (a cube 1e-13 across cooks as one 1 across does; one 1e-14 across does not).
+pub const MIN_EXTENT: f64 = 1e-12;
+
 /// Welds vertices with identical positions, drops degenerate triangles, and validates.
 pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
     if let Some((i, p)) = raw.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
         return Err(IngestError::NonFinite(format!("{}, {}, {}", p.x, p.y, p.z), i));
+    }
+    if let Some((i, p)) = (raw.positions.iter().enumerate()).find(|(_, p)| p.abs().max_element() > MAX_COORDINATE) {
+        return Err(IngestError::FarVertex(format!("{:e}, {:e}, {:e}", p.x, p.y, p.z), i));
     }
     let mut stats = IngestStats {
         input_triangles: raw.triangles.len(),
@@ -402,6 +416,11 @@ pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
         }
     }
     stats.welded_vertices = compact.len();
+    let (lo, hi) = point_bounds(compact.iter().map(|p| p.as_dvec3()));
+    let extent = (hi - lo).max_element();
+    if extent < MIN_EXTENT {
+        return Err(IngestError::TooSmall(extent));
+    }
     Ok((
         Mesh {
             positions: compact,

@@ -372,7 +372,12 @@ pub(crate) fn weld(raw: RawMesh) -> Result<(Mesh, IngestStats), IngestError> {
     if let Some((i, p)) = raw.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
         return Err(IngestError::NonFinite(format!("{}, {}, {}", p.x, p.y, p.z), i));
     }
-    if let Some((i, p)) = (raw.positions.iter().enumerate()).find(|(_, p)| p.abs().max_element() > MAX_COORDINATE) {
+    if let Some((i, p)) = raw
+        .positions
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.abs().max_element() > MAX_COORDINATE)
+    {
         return Err(IngestError::FarVertex(format!("{:e}, {:e}, {:e}", p.x, p.y, p.z), i));
     }
     let mut stats = IngestStats {

@@ -60,6 +60,8 @@ fn errors_are_one_line_and_name_the_problem() {
     std::fs::write(&bad_config, "[cook]\nresolutoin = 64\n").unwrap();
     let nan = temp("nan.obj");
     std::fs::write(&nan, "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n").unwrap();
+    let far = temp("far.obj");
+    std::fs::write(&far, "v 0 0 0\nv 1 0 0\nv 3e38 1 0\nf 1 2 3\n").unwrap();
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (
             vec!["cook", input, "-o", out, "--set", "cook.colour=red"],
@@ -90,6 +92,15 @@ fn errors_are_one_line_and_name_the_problem() {
             "cannot read /nonexistent/mesh.obj",
         ),
         (vec!["cook", "mesh.dae", "-o", out], "unknown mesh format"),
+        (vec!["cook", far.to_str().unwrap(), "-o", out], "lies past ±1e30"),
+        (
+            vec!["soak", "--worker-nodes", "2", "--duration", "1s"],
+            "--worker-nodes needs --set service.nats_url",
+        ),
+        (
+            vec!["soak", "--worker-nodes", "17", "--set", "service.nats_url=nats://x"],
+            "--worker-nodes must be at most 16",
+        ),
     ];
     for (args, expected) in cases {
         let (ok, _, stderr) = run(&args);

@@ -85,3 +85,23 @@ fn the_preview_paints_false_pixels_red_and_only_those() {
     let (image, _) = sheet(&original, &inside, &with_opening);
     assert!(outlined(&image) > 200, "{} outlined", outlined(&image));
 }
+
+/// Coverage is over the views that see the original. Where none does (a flat square judged from
+/// a cube map at its own centre, every face edge-on to it), the figures say so: no views seeing,
+/// coverage 0 and not a mean of nothing.
+#[test]
+fn coverage_is_over_the_views_that_see_the_original_and_none_is_said() {
+    use occluder_cook::eval::ViewSet;
+    let square = common::square();
+    let mut settings = common::defaults().eval;
+    settings.pixels = 64;
+    settings.view_set = ViewSet::Inside;
+    let q = evaluate(&square, &[], &square, &settings, None).expect("the CPU evaluates");
+    assert_eq!((q.views, q.views_seeing), (6, 0), "{q:?}");
+    assert_eq!((q.coverage.to_bits(), q.coverage_min.to_bits()), (0, 0), "{q:?}");
+    // From outside, every view sees it but those edge-on; coverage is theirs.
+    settings.view_set = ViewSet::Outside;
+    let q = evaluate(&square, &[], &square, &settings, None).expect("the CPU evaluates");
+    assert!(q.views_seeing > 0 && q.views_seeing <= q.views, "{q:?}");
+    assert_eq!((q.coverage, q.coverage_min), (1.0, 1.0), "{q:?}");
+}

@@ -8,7 +8,6 @@ use glam::{DVec3, Vec3};
 use occluder_cook::cook::Cooked;
 use occluder_cook::geom::camera::View;
 use occluder_cook::geom::raster::coverage_mask;
-use occluder_cook::mesh::Mesh;
 use occluder_cook::occluder::{Panel, Shape};
 
 fn of_shape(cooked: &Cooked, shape: Shape) -> Vec<Panel> {
@@ -49,16 +48,7 @@ fn slab_a_tenth_of_a_voxel_thick_gives_one_quad_inside_it() {
 
 #[test]
 fn single_sided_plane_gives_a_patch_on_it() {
-    let plane = Mesh {
-        positions: vec![
-            Vec3::new(-1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, 1.0),
-            Vec3::new(-1.0, 0.0, 1.0),
-        ],
-        triangles: vec![[0, 2, 1], [0, 3, 2]],
-    };
-    let cooked = cook_evaluated_with(plane, &VOXEL_AND_PANEL_SHAPES);
+    let cooked = cook_evaluated_with(common::square(), &VOXEL_AND_PANEL_SHAPES);
     let patches = of_shape(&cooked, Shape::Patches);
     assert!(!patches.is_empty(), "{:?}", cooked.report.notes);
     for c in patches.iter().flat_map(|p| p.corners) {

@@ -58,12 +58,18 @@ pub fn run(args: EvalArgs) -> Result<()> {
     };
     println!("rendered on        {rendered_on}");
     println!("triangles          {}", q.occluder_triangles);
-    println!(
-        "coverage           {:.2}% (min {:.2}%) over {} views",
-        q.coverage * 100.0,
-        q.coverage_min * 100.0,
-        q.views
-    );
+    let over = match q.views_seeing {
+        seeing if seeing == q.views => format!("{seeing} views"),
+        seeing => format!("the {seeing} of {} views that see the original", q.views),
+    };
+    match q.views_seeing {
+        0 => println!("coverage           none measured: no view sees the original"),
+        _ => println!(
+            "coverage           {:.2}% (min {:.2}%) over {over}",
+            q.coverage * 100.0,
+            q.coverage_min * 100.0
+        ),
+    }
     println!("false pixels       {} (all views)", q.false_pixels);
     println!(
         "false pixels       {} ({} non-below views)",

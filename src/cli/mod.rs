@@ -193,13 +193,18 @@ fn summarize(input: &Path, r: &Report) {
         r.total_ms()
     );
     match &r.quality {
-        Some(q) => println!(
-            "; coverage {:.1}%, false pixels {} ({} in non-below views), outside samples {:.2}%",
-            q.coverage * 100.0,
-            q.false_pixels,
-            q.false_pixels_non_below,
-            q.outside_samples * 100.0
-        ),
+        Some(q) => {
+            let coverage = match q.views_seeing {
+                0 => "no view sees the original, so no coverage".to_string(),
+                _ => format!("coverage {:.1}%", q.coverage * 100.0),
+            };
+            println!(
+                "; {coverage}, false pixels {} ({} in non-below views), outside samples {:.2}%",
+                q.false_pixels,
+                q.false_pixels_non_below,
+                q.outside_samples * 100.0
+            )
+        }
         None => println!(),
     }
     for note in &r.notes {

@@ -44,9 +44,11 @@ pub enum ViewSet {
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Quality {
     /// Mean over views of |occluder ∩ original| / |original| pixels (views that see the
-    /// original at all).
+    /// original at all; 0 where none does).
     pub coverage: f64,
     pub coverage_min: f64,
+    /// Views that see the original at all: coverage is theirs.
+    pub views_seeing: usize,
     /// Pixels where the occluder would hide something visible, over all views.
     pub false_pixels: u64,
     /// The same over the views whose camera is not below the object (y up).
@@ -135,7 +137,6 @@ pub fn evaluate(
             .collect(),
     };
     let seen: Vec<f64> = per_view.iter().filter_map(|v| v.0).collect();
-    let n = seen.len().max(1) as f64;
     let samples = sample_surface(occluder, settings.outside_samples);
     let field = WindingField::new(original, boundary);
     // A point on the original's surface (a patch) is on the solid's boundary, not outside it.
@@ -145,8 +146,12 @@ pub fn evaluate(
         .filter(|&&p| field.winding(p) < 0.5 && !surface.on_surface(p))
         .count();
     Ok(Quality {
-        coverage: seen.iter().sum::<f64>() / n,
-        coverage_min: seen.iter().copied().fold(1.0, f64::min),
+        coverage: match seen.len() {
+            0 => 0.0,
+            n => seen.iter().sum::<f64>() / n as f64,
+        },
+        coverage_min: seen.iter().copied().reduce(f64::min).unwrap_or(0.0),
+        views_seeing: seen.len(),
         false_pixels: per_view.iter().map(|v| v.1).sum(),
         false_pixels_non_below: per_view.iter().filter(|v| v.2).map(|v| v.1).sum(),
         views: per_view.len(),

@@ -134,6 +134,19 @@ pub fn cli(args: &[&str]) -> (i32, String, String) {
     )
 }
 
+/// A 2 × 2 square on the plane y = 0 around the origin, facing up: two triangles.
+pub fn square() -> Mesh {
+    Mesh {
+        positions: vec![
+            Vec3::new(-1.0, 0.0, -1.0),
+            Vec3::new(1.0, 0.0, -1.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(-1.0, 0.0, 1.0),
+        ],
+        triangles: vec![[0, 2, 1], [0, 3, 2]],
+    }
+}
+
 /// Runs `soak` for a minute with 3 clients and `args` besides, and checks what it reports: no job
 /// lost, every accepted one ended, no cancel undone, no wrong bytes or keys, no answer off the
 /// contract, and every kind of request sent. Returns the report.

@@ -65,6 +65,14 @@ pub struct Quality {
     pub worst_view: Option<([f64; 3], u64)>,
 }
 
+/// The mean, 0 for none.
+fn mean(values: &[f64]) -> f64 {
+    match values.len() {
+        0 => 0.0,
+        n => values.iter().sum::<f64>() / n as f64,
+    }
+}
+
 /// Judges `occluder` against `original`; `boundary` is the original's open boundary. With a
 /// `gpu`, the outside views are rendered there (shaders/raster.wgsl); inside views, which are
 /// perspective, always on the CPU.
@@ -146,10 +154,7 @@ pub fn evaluate(
         .filter(|&&p| field.winding(p) < 0.5 && !surface.on_surface(p))
         .count();
     Ok(Quality {
-        coverage: match seen.len() {
-            0 => 0.0,
-            n => seen.iter().sum::<f64>() / n as f64,
-        },
+        coverage: mean(&seen),
         coverage_min: seen.iter().copied().reduce(f64::min).unwrap_or(0.0),
         views_seeing: seen.len(),
         false_pixels: per_view.iter().map(|v| v.1).sum(),

@@ -14,7 +14,7 @@ pub mod tls;
 
 use crate::config::Settings;
 use crate::cook::{CookError, cook_with_progress};
-use crate::store::job::{self, Job, JobError, JobKind, JobState, now_ms};
+use crate::store::job::{Job, JobError, JobKind, JobState, now_ms};
 use crate::store::{self, Delivery, Input, ResultMeta, Store, StoreError, StoreResult, Unwritten, patiently};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -165,26 +165,12 @@ impl Service {
         settings: serde_json::Value,
         owner: Option<String>,
     ) -> Result<Submitted, SubmitError> {
-        let now = now_ms();
         let kind = if input.format == LEVEL_FORMAT {
             JobKind::Level
         } else {
             JobKind::Mesh
         };
-        let job = Job {
-            id: job::new_id(),
-            kind,
-            key: key.to_string(),
-            state: JobState::Queued,
-            stage: None,
-            progress: 0.0,
-            error: None,
-            settings,
-            created_ms: now,
-            updated_ms: now,
-            attempts: 0,
-            owner,
-        };
+        let job = Job::queued(kind, key, settings, owner);
         if let Some(meta) = self.result_meta(key).await? {
             metrics::counter!("occluder_cache_hits_total").increment(1);
             return Ok(Submitted::Cached(self.serving(meta, job).await?));
@@ -1281,7 +1267,7 @@ pub async fn work(settings: Settings) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::{Lru, Service, StoreError, Submitted, Unmade};
-    use crate::store::job::{Job, JobError, JobKind, JobState, new_id, now_ms};
+    use crate::store::job::{Job, JobError, JobKind, JobState, now_ms};
     use crate::store::{Input, ResultMeta, Store, sled::SledStore};
     use std::sync::Arc;
 
@@ -1297,21 +1283,14 @@ mod tests {
             .await
             .unwrap();
         let maker = Job {
-            id: new_id(),
-            kind: JobKind::Mesh,
-            key: "key".into(),
             state: JobState::Failed,
-            stage: None,
             progress: 0.5,
             error: Some(JobError {
                 code: "cancelled".into(),
                 message: "cancelled".into(),
             }),
-            settings: serde_json::Value::Null,
-            created_ms: now_ms(),
-            updated_ms: now_ms(),
             attempts: 1,
-            owner: None,
+            ..Job::queued(JobKind::Mesh, "key", serde_json::Value::Null, None)
         };
         store.put_job(&maker).await.unwrap();
         let made = ResultMeta {

@@ -67,6 +67,27 @@ pub struct Job {
     pub owner: Option<String>,
 }
 
+impl Job {
+    /// A new job, queued now, with a fresh id.
+    pub fn queued(kind: JobKind, key: &str, settings: serde_json::Value, owner: Option<String>) -> Job {
+        let now = now_ms();
+        Job {
+            id: new_id(),
+            kind,
+            key: key.to_string(),
+            state: JobState::Queued,
+            stage: None,
+            progress: 0.0,
+            error: None,
+            settings,
+            created_ms: now,
+            updated_ms: now,
+            attempts: 0,
+            owner,
+        }
+    }
+}
+
 /// Milliseconds since the Unix epoch.
 pub fn now_ms() -> u64 {
     std::time::SystemTime::now()

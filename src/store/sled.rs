@@ -379,27 +379,14 @@ impl Store for SledStore {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::store::job::{JobError, JobKind, new_id};
+    use crate::store::job::{JobError, JobKind};
 
     #[tokio::test]
     async fn a_job_ended_meanwhile_keeps_its_end() {
         let dir = std::env::temp_dir().join(format!("occluder-cook-sled-ended-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let store = SledStore::open(&dir, 1 << 20).unwrap();
-        let mut job = Job {
-            id: new_id(),
-            kind: JobKind::Mesh,
-            key: "key".into(),
-            state: JobState::Queued,
-            stage: None,
-            progress: 0.0,
-            error: None,
-            settings: serde_json::Value::Null,
-            created_ms: now_ms(),
-            updated_ms: now_ms(),
-            attempts: 0,
-            owner: None,
-        };
+        let mut job = Job::queued(JobKind::Mesh, "key", serde_json::Value::Null, None);
         // Not stored: not written.
         assert_eq!(store.put_job_unless_ended(&job).await.unwrap(), Err(Unwritten::Gone));
         assert_eq!(store.job(&job.id).await.unwrap(), None);

@@ -592,8 +592,9 @@ impl OpenViews {
     }
 
     /// Whether no view sees any pixel of a box (its triangles, two a face as in
-    /// [`BOX_FACES`](crate::occluder::BOX_FACES)) in front of the original. Faces turned away from a view are skipped: the
-    /// faces turned towards it cover them. What the bands cannot answer for counts as shown.
+    /// [`BOX_FACES`](crate::occluder::BOX_FACES)) in front of the original. Faces turned away
+    /// from a view are skipped: the faces turned towards it cover them. What the bands cannot
+    /// answer for counts as shown.
     pub fn hides_box(&self, triangles: &[[DVec3; 3]; 12]) -> bool {
         triangles
             .chunks_exact(2)

@@ -707,7 +707,8 @@ async fn file_level_meshes(
     Ok((key_of, filed))
 }
 
-/// 200 with a done job of a cached result (see [`Service::submit`]), 202 with `Location` for a queued one.
+/// 200 with a done job of a cached result (see [`Service::submit`]), 202 with `Location` for a
+/// queued one.
 fn submitted(key: &str, outcome: Result<Submitted, SubmitError>) -> Result<Response, ApiError> {
     match outcome {
         Ok(Submitted::Cached(job)) => Ok((StatusCode::OK, Json(accepted(key, job))).into_response()),

@@ -13,7 +13,7 @@ pub use report::{BoxReport, Cooked, InputReport, OccluderReport, PanelReport, Re
 use crate::config::{CookSettings, Settings};
 use crate::eval::{Quality, evaluate};
 use crate::geom::openings::{Opening, close_openings};
-use crate::geom::raster;
+use crate::geom::{f32_slack, raster};
 use crate::gpu::{self, Gpu, GpuError};
 use crate::key::{PIPELINE_VERSION, cache_key};
 use crate::mesh::{IngestStats, Mesh, Topology, topology::orient_closed_components};
@@ -532,8 +532,13 @@ fn unexposed_quads(views: &OpenViews, quads: Vec<Panel>) -> (Vec<Panel>, [usize;
     (kept.into_iter().map(|(q, _)| q).collect(), [dropped, cut])
 }
 
+/// None where the mesh lies so far from the origin that writing a patch as f32 may move it off
+/// the surface it lies on ([`f32_slack`]).
 fn find_patches(mesh: &Mesh, topology: &Topology, cook: &CookSettings) -> Vec<Panel> {
     let (lo, hi) = mesh.bounds();
+    if f32_slack(lo.as_dvec3(), hi.as_dvec3()) > 0.0 {
+        return Vec::new();
+    }
     let size = f64::from((hi - lo).max_element());
     patches::find(
         mesh,

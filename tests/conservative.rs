@@ -2,7 +2,7 @@
 //! false pixels, and no box where no box fits.
 
 mod common;
-use common::{concat, cook_evaluated, cuboid, torus};
+use common::{concat, cook_evaluated, cook_evaluated_with, cuboid, torus};
 use glam::Vec3;
 use occluder_cook::cook::cook;
 use occluder_cook::occluder::Shape;
@@ -70,6 +70,22 @@ fn torus_keeps_its_hole_open() {
     });
     assert_eq!(q.false_pixels, 0);
     assert_eq!(q.outside_samples, 0.0);
+}
+
+/// 100 km out an f32 step is 0.008, which writing the occluder as f32 may move a corner by:
+/// far more than the clearance from the surface that boxes and quads keep near the origin.
+#[test]
+fn a_torus_far_from_the_origin_shows_no_false_pixel() {
+    let mut far = torus(1.0, 0.45, 48, 24);
+    for p in &mut far.positions {
+        *p += Vec3::new(1e5, 0.0, -1e5);
+    }
+    for shapes in [[Shape::Boxes], [Shape::Quads]] {
+        let cooked = cook_evaluated_with(far.clone(), &shapes);
+        let q = cooked.report.quality.unwrap();
+        assert!(cooked.occluder.triangles() > 0, "{shapes:?}");
+        assert_eq!(q.false_pixels, 0, "{shapes:?}");
+    }
 }
 
 #[test]

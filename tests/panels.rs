@@ -62,6 +62,22 @@ fn single_sided_plane_gives_a_patch_on_it() {
     assert_eq!(q.false_pixels, 0, "{q:?}");
 }
 
+/// A patch's corners are new points: 100 km out, writing them as f32 may move them 0.008 off
+/// the plane they lie on, so there the plane is left to the other pieces.
+#[test]
+fn a_single_sided_plane_far_from_the_origin_gives_no_patch() {
+    let turn = glam::Quat::from_rotation_x(0.5);
+    for (offset, patches) in [(0.0, true), (1e5, false)] {
+        let mut plane = common::square();
+        for p in &mut plane.positions {
+            *p = turn * *p + Vec3::splat(offset);
+        }
+        let cooked = cook_evaluated_with(plane, &VOXEL_AND_PANEL_SHAPES);
+        assert_eq!(!of_shape(&cooked, Shape::Patches).is_empty(), patches, "at {offset}");
+        assert_conservative(&cooked);
+    }
+}
+
 #[test]
 fn l_shaped_thin_wall_gives_two_quads() {
     let t = 0.05;

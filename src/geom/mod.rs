@@ -45,6 +45,15 @@ pub fn ceil_index(v: f64) -> usize {
     below as usize + usize::from(f64::from(below) < v)
 }
 
+/// How far writing a point within bounds `lo`..`hi` as f32 (as the occluder GLB does) may move
+/// it past the millionth of their size that the stages keep from the surface anyway: an f32 step
+/// along each axis at the bounds' largest coordinate, less that millionth. 0 within a few sizes
+/// of the origin; 0.014 for a 2 m mesh 100 km away.
+pub fn f32_slack(lo: glam::DVec3, hi: glam::DVec3) -> f64 {
+    let moved = 3f64.sqrt() * lo.abs().max(hi.abs()).max_element() * f64::from(f32::EPSILON);
+    (moved - 1e-6 * (hi - lo).max_element()).max(0.0)
+}
+
 // `f64::min` and `max` also handle a NaN on either side, which costs a compare and a blend
 // each; a running bound is never NaN, and one instruction does.
 
@@ -110,5 +119,19 @@ mod tests {
         for i in [0, 1, 255, 65_536, (1 << 31) - 1] {
             assert_eq!(index_to_f64(i), i as f64);
         }
+    }
+
+    #[test]
+    fn f32_slack_is_what_rounding_to_f32_moves_a_corner_past_a_millionth_of_the_size() {
+        use glam::DVec3;
+        let two_metres = |at: f64| f32_slack(DVec3::splat(at - 1.0), DVec3::splat(at + 1.0));
+        assert_eq!(two_metres(0.0), 0.0);
+        assert_eq!(two_metres(5.0), 0.0);
+        // An f32 step at 100 km is 2⁻⁷, under the step counted; rounding each of three
+        // coordinates moves a corner up to √3 steps. Less the 2e-6 the stages keep already.
+        assert_eq!(f32::from_bits(1e5f32.to_bits() + 1) - 1e5, 2f32.powi(-7));
+        let step = (1e5 + 1.0) * f64::from(f32::EPSILON);
+        assert!(step >= 2f64.powi(-7));
+        assert!((two_metres(1e5) - (3f64.sqrt() * step - 2e-6)).abs() < 1e-12);
     }
 }

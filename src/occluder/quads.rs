@@ -18,7 +18,7 @@ use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape, WorldBox};
 use crate::geom::buckets::Buckets;
 use crate::geom::grid_counts::GridCounts;
-use crate::geom::{ceil_index, floor_index, greater, index_to_f64, lesser};
+use crate::geom::{ceil_index, f32_slack, floor_index, greater, index_to_f64, lesser};
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
 use glam::{DMat3, DQuat, DVec3};
@@ -142,6 +142,8 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
         DQuat::from_rotation_z(FRAC_PI_4),
     ];
     let passes: Vec<(DQuat, usize)> = frames.iter().flat_map(|&f| (0..3).map(move |axis| (f, axis))).collect();
+    let (world_lo, world_hi) = mesh.bounds();
+    let inset = f32_slack(world_lo.as_dvec3(), world_hi.as_dvec3());
     // Each pass's gaps, then its rectangles: the searches, serial within a pass, are shared out
     // once all gaps are found, so that no thread waits long for the last.
     let found: Vec<_> = passes
@@ -165,7 +167,7 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
                 ],
             };
             // Keeps quads clear of the surface by more than rounding to f32 can move them.
-            let margin = 1e-6 * size;
+            let margin = 1e-6 * size + inset;
             let corners: Vec<[f64; 3]> = mesh.positions.iter().map(|p| g.uv(p.as_dvec3())).collect();
             let reach = match solid {
                 Solid::Points { within, .. } => Some(Reach::new(&g, within)),
@@ -178,7 +180,7 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
         .collect();
     found
         .par_iter()
-        .flat_map_iter(|(g, gaps, planes, margin)| best_rectangles(g, gaps, planes, *margin))
+        .flat_map_iter(|(g, gaps, planes, margin)| best_rectangles(g, gaps, planes, *margin, inset))
         .collect()
 }
 
@@ -927,7 +929,7 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
 /// its open cells and those of the largest part around the taken rectangle. A plane with the
 /// same open cells as a neighbour searched since takes its best. These are lazy greedy picks,
 /// the same as searching every plane at first and again whenever it loses cells.
-fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Vec<Panel> {
+fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64, inset: f64) -> Vec<Panel> {
     let nv = g.dims[1];
     let mut planes = Planes::new(gaps, planes, margin, g.dims);
     let mut quads = Vec::new();
@@ -969,8 +971,13 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64) -> Ve
         planes.close(&rect, &filled);
         planes.bound_around(&rect);
         let t = 0.5 * (lo + hi);
-        let u = rect.u.map(|k| g.line(0, k));
-        let v = rect.v.map(|k| g.line(1, k));
+        // Inset from the cells' edges, where the surface may lie just beyond, by what writing
+        // the corners as f32 may move them.
+        let u = [g.line(0, rect.u[0]) + inset, g.line(0, rect.u[1]) - inset];
+        let v = [g.line(1, rect.v[0]) + inset, g.line(1, rect.v[1]) - inset];
+        if u[0] >= u[1] || v[0] >= v[1] {
+            continue;
+        }
         let corners = [(u[0], v[0]), (u[1], v[0]), (u[1], v[1]), (u[0], v[1])];
         quads.push(Panel {
             shape: Shape::Quads,
@@ -1187,7 +1194,7 @@ mod tests {
             }
             let planes: Vec<f64> = (0..40).map(|_| rng.f64() * 10.0).collect();
             let margin = 1e-6;
-            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, &planes, margin)
+            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, &planes, margin, 0.0)
                 .iter()
                 .flat_map(|q| [[q.corners[0][0], q.corners[0][1]], [q.corners[2][0], q.corners[2][1]]])
                 .collect();

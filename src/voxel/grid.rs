@@ -65,6 +65,12 @@ impl Grid {
         self.origin() + v * self.voxel_size
     }
 
+    /// [`crate::geom::f32_slack`] over the grid.
+    pub fn f32_slack(&self) -> f64 {
+        let far = self.to_world(DVec3::from_array(self.dims.map(|n| n as f64)));
+        crate::geom::f32_slack(self.origin(), far)
+    }
+
     pub fn center(&self, x: usize, y: usize, z: usize) -> DVec3 {
         self.to_world(DVec3::new(x as f64, y as f64, z as f64) + 0.5)
     }

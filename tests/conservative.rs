@@ -51,6 +51,9 @@ fn cube_with_one_face_flipped() {
     mesh.triangles[2].swap(1, 2);
     mesh.triangles[3].swap(1, 2);
     let cooked = cook_evaluated(mesh);
+    // Turned back, it is the closed cube again.
+    let input = &cooked.report.input.topology;
+    assert_eq!((input.reoriented_triangles, input.closed_components), (2, 1));
     let q = cooked.report.quality.unwrap();
     assert!(cooked.occluder.triangles() > 0);
     assert_vertices_inside(&cooked.occluder.mesh().positions, |p| in_box(p, lo, hi));

@@ -24,6 +24,8 @@ pub struct Topology {
     pub closed_components: usize,
     /// Closed components whose faces pointed inwards; they were turned outwards.
     pub inverted_components: usize,
+    /// Flipped faces of closed components, turned to agree with the rest.
+    pub reoriented_triangles: usize,
     #[serde(skip)]
     pub boundary: Vec<BoundaryEdge>,
     /// Per triangle: whether its component has an open boundary (no volume of its own).
@@ -31,17 +33,22 @@ pub struct Topology {
     pub open_triangles: Vec<bool>,
 }
 
-/// Turns inverted closed components outwards in place and returns the topology of the result.
+/// Turns the flipped faces of closed components to agree with the rest
+/// ([`close_flipped_components`]), then inverted closed components outwards, in place, and
+/// returns the topology of the result.
 pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
     let component = components(mesh);
     let count = component.iter().copied().max().map_or(0, |m| m as usize + 1);
+    let uses = directed_uses(mesh);
+    let turned = close_flipped_components(mesh, &uses, &component, count);
+    let reoriented_triangles = turned.iter().filter(|&&t| t).count();
     let mut open = vec![false; count];
     let mut volume = vec![0.0f64; count];
     for (t, tri) in mesh.triangles.iter().enumerate() {
         let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
         volume[component[tri[0] as usize] as usize] += a.dot(b.cross(c));
     }
-    let edges = edge_uses(mesh);
+    let edges = edge_uses(&uses, &turned);
     for ((a, _), uses) in &edges {
         if uses.net != 0 {
             open[component[*a as usize] as usize] = true;
@@ -57,6 +64,7 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
         components: count,
         closed_components: open.iter().filter(|o| !**o).count(),
         inverted_components: inverted.iter().filter(|i| **i).count(),
+        reoriented_triangles,
         open_triangles: mesh
             .triangles
             .iter()
@@ -86,24 +94,36 @@ struct EdgeUses {
     total: u32,
 }
 
-/// Each edge's uses, by its key, the keys in order.
-fn edge_uses(mesh: &Mesh) -> Vec<((u32, u32), EdgeUses)> {
-    let mut directed: Vec<((u32, u32), i32)> = mesh
+/// An edge's use by a triangle: the edge's key (its lower vertex first), 1 where the triangle
+/// runs from the key's lower vertex and -1 where from its higher, and the triangle.
+type Use = ((u32, u32), i32, u32);
+
+/// Every edge use of `mesh`, in order of key.
+fn directed_uses(mesh: &Mesh) -> Vec<Use> {
+    let mut uses: Vec<Use> = mesh
         .triangles
         .iter()
-        .flat_map(|tri| {
-            (0..3).map(|k| {
+        .zip(0..)
+        .flat_map(|(tri, t)| {
+            (0..3).map(move |k| {
                 let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                if a < b { ((a, b), 1) } else { ((b, a), -1) }
+                if a < b { ((a, b), 1, t) } else { ((b, a), -1, t) }
             })
         })
         .collect();
     // Equal entries are the same value, so the parallel sort's order is the serial one's.
-    directed.par_sort_unstable();
-    directed
-        .chunk_by(|x, y| x.0 == y.0)
+    uses.par_sort_unstable();
+    uses
+}
+
+/// Each edge's uses, by its key, the keys in order; a triangle `turned` runs the other way.
+fn edge_uses(uses: &[Use], turned: &[bool]) -> Vec<((u32, u32), EdgeUses)> {
+    uses.chunk_by(|x, y| x.0 == y.0)
         .map(|uses| {
-            let net = uses.iter().map(|&(_, sign)| sign).sum();
+            let net = uses
+                .iter()
+                .map(|&(_, sign, t)| if turned[t as usize] { -sign } else { sign })
+                .sum();
             (
                 uses[0].0,
                 EdgeUses {
@@ -113,6 +133,64 @@ fn edge_uses(mesh: &Mesh) -> Vec<((u32, u32), EdgeUses)> {
             )
         })
         .collect()
+}
+
+/// Turns triangles, in place, so that two that alone share an edge cross it in opposite
+/// directions, as a surface's faces do: each part so joined keeps the way most of its triangles
+/// face. Only where that closes a component (every edge's uses cancel) does it stay; an open one
+/// keeps its triangles as they were. Returns which were turned.
+fn close_flipped_components(mesh: &mut Mesh, uses: &[Use], component: &[u32], count: usize) -> Vec<bool> {
+    let n = mesh.triangles.len();
+    // Per triangle, its neighbours across edges that two triangles share, and whether each runs
+    // the edge the same way (disagrees).
+    let mut neighbours = vec![[(u32::MAX, false); 3]; n];
+    for pair in uses.chunk_by(|x, y| x.0 == y.0).filter(|pair| pair.len() == 2) {
+        let ((_, s_sign, s), (_, t_sign, t)) = (pair[0], pair[1]);
+        for (from, to) in [(s, t), (t, s)] {
+            if let Some(slot) = neighbours[from as usize].iter_mut().find(|n| n.0 == u32::MAX) {
+                *slot = (to, s_sign == t_sign);
+            }
+        }
+    }
+    // Part by part, whether each triangle turns to agree with where the part began.
+    let mut turn: Vec<Option<bool>> = vec![None; n];
+    let mut turned = vec![false; n];
+    let (mut part, mut stack) = (Vec::new(), Vec::new());
+    for seed in 0..n {
+        if turn[seed].is_some() {
+            continue;
+        }
+        turn[seed] = Some(false);
+        part.clear();
+        stack.push(seed);
+        while let Some(t) = stack.pop() {
+            part.push(t);
+            let flip = turn[t] == Some(true);
+            for &(u, disagree) in neighbours[t].iter().filter(|n| n.0 != u32::MAX) {
+                if turn[u as usize].is_none() {
+                    turn[u as usize] = Some(flip != disagree);
+                    stack.push(u as usize);
+                }
+            }
+        }
+        let most_turn = 2 * part.iter().filter(|&&t| turn[t] == Some(true)).count() > part.len();
+        for &t in &part {
+            turned[t] = (turn[t] == Some(true)) != most_turn;
+        }
+    }
+    let mut open = vec![false; count];
+    for (key, edge) in edge_uses(uses, &turned) {
+        if edge.net != 0 {
+            open[component[key.0 as usize] as usize] = true;
+        }
+    }
+    for (t, tri) in mesh.triangles.iter_mut().enumerate() {
+        turned[t] &= !open[component[tri[0] as usize] as usize];
+        if turned[t] {
+            tri.swap(1, 2);
+        }
+    }
+    turned
 }
 
 /// Connected components over shared vertices, numbered densely from 0, one entry per vertex.
@@ -153,4 +231,59 @@ pub fn linked_components(count: usize, links: impl IntoIterator<Item = (u32, u32
             label[r]
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// A unit cube, wound outwards, without the faces in `skip` (-x, +x, -y, +y, -z, +z).
+    fn cube(skip: &[usize]) -> Mesh {
+        let corner = |i: u32| Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, (i >> 2) as f32);
+        let faces = [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ];
+        Mesh {
+            positions: (0..8).map(corner).collect(),
+            triangles: faces
+                .iter()
+                .enumerate()
+                .filter(|(f, _)| !skip.contains(f))
+                .flat_map(|(_, &[a, b, c, d])| [[a, b, c], [a, c, d]])
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn a_closed_cube_with_flipped_faces_is_closed_again_and_an_open_one_is_left_alone() {
+        let outward = cube(&[]);
+        assert_eq!(orient_closed_components(&mut outward.clone()).closed_components, 1);
+        let mut flipped = outward.clone();
+        for t in [3, 7] {
+            flipped.triangles[t].swap(1, 2);
+        }
+        let topology = orient_closed_components(&mut flipped);
+        assert_eq!((topology.closed_components, topology.reoriented_triangles), (1, 2));
+        assert!(topology.boundary.is_empty());
+        assert_eq!(flipped.triangles, outward.triangles);
+        // All of it flipped: one inverted component, turned outwards whole.
+        let mut inside_out = outward.clone();
+        inside_out.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+        let topology = orient_closed_components(&mut inside_out);
+        assert_eq!((topology.inverted_components, topology.reoriented_triangles), (1, 0));
+        assert_eq!(inside_out.triangles, outward.triangles);
+        // Open, its flipped face stays: nothing says which way an open surface faces.
+        let mut open = cube(&[3]);
+        open.triangles[0].swap(1, 2);
+        let before = open.triangles.clone();
+        let topology = orient_closed_components(&mut open);
+        assert_eq!((topology.closed_components, topology.reoriented_triangles), (0, 0));
+        assert_eq!(open.triangles, before);
+    }
 }

@@ -47,8 +47,8 @@ pub fn ceil_index(v: f64) -> usize {
 
 /// How far writing a point within bounds `lo`..`hi` as f32 (as the occluder GLB does) may move
 /// it past the millionth of their size that the stages keep from the surface anyway: an f32 step
-/// along each axis at the bounds' largest coordinate, less that millionth. 0 within a few sizes
-/// of the origin; 0.014 for a 2 m mesh 100 km away.
+/// at the bounds' largest coordinate along each axis (√3 steps in all), less that millionth. 0
+/// within a few sizes of the origin; 0.014 for a 2 m mesh 100 km away.
 pub fn f32_slack(lo: glam::DVec3, hi: glam::DVec3) -> f64 {
     let moved = 3f64.sqrt() * lo.abs().max(hi.abs()).max_element() * f64::from(f32::EPSILON);
     (moved - 1e-6 * (hi - lo).max_element()).max(0.0)

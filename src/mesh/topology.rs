@@ -236,26 +236,22 @@ pub fn linked_components(count: usize, links: impl IntoIterator<Item = (u32, u32
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::occluder::BOX_FACES;
     use glam::Vec3;
 
-    /// A unit cube, wound outwards, without the faces in `skip` (-x, +x, -y, +y, -z, +z).
+    /// A unit cube, wound outwards, without the faces in `skip` (in `BOX_FACES`' order).
     fn cube(skip: &[usize]) -> Mesh {
         let corner = |i: u32| Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, (i >> 2) as f32);
-        let faces = [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ];
         Mesh {
             positions: (0..8).map(corner).collect(),
-            triangles: faces
+            triangles: BOX_FACES
                 .iter()
                 .enumerate()
                 .filter(|(f, _)| !skip.contains(f))
-                .flat_map(|(_, &[a, b, c, d])| [[a, b, c], [a, c, d]])
+                .flat_map(|(_, q)| {
+                    let [a, b, c, d] = q.map(|i| i as u32);
+                    [[a, b, c], [a, c, d]]
+                })
                 .collect(),
         }
     }

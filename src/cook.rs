@@ -269,11 +269,7 @@ fn cook_voxels(
         select_pieces(&voxels.silhouettes, mesh, &voxels.box_candidates, &panels, pieces, cook)
     })?;
     let inner_count = voxels.inner.iter().filter(|&&v| v).count();
-    let exposed = [
-        voxels.exposed_voxels,
-        voxels.voxel_boxes.len() - voxels.box_candidates.len(),
-        quads_shown[0],
-    ];
+    let exposed = [voxels.exposed_voxels, voxels.exposed_boxes, quads_shown[0]];
     run.note_exposure(voxels.open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
     let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
     run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
@@ -301,6 +297,8 @@ struct VoxelStages {
     inner: Vec<bool>,
     open_views: Option<OpenViews>,
     exposed_voxels: usize,
+    /// Boxes an opening shows, even on the grid.
+    exposed_boxes: usize,
     voxel_boxes: Vec<VoxelBox>,
     /// Each box candidate with the index of the voxel box it came from.
     box_sources: Vec<usize>,
@@ -345,10 +343,12 @@ fn voxel_stages(
     let refined = run.stage("refine", || {
         refine_boxes(mesh, grid, winding_field(), &inside.solid, &voxel_boxes, cook.refine)
     })?;
+    let kept = refined.len();
     let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
-        None => refined.into_iter().map(|(refined, _)| refined).enumerate().unzip(),
+        None => refined.into_iter().map(|(id, refined, _)| (id, refined)).unzip(),
         Some(views) => run.stage("exposure-boxes", || unexposed_boxes(views, refined))?,
     };
+    let exposed_boxes = kept - box_candidates.len();
     let silhouettes = match silhouettes {
         Some(found) => found,
         None => run.stage("silhouettes", || Silhouettes::new(mesh))?,
@@ -359,6 +359,7 @@ fn voxel_stages(
         inner,
         open_views,
         exposed_voxels,
+        exposed_boxes,
         voxel_boxes,
         box_sources,
         box_candidates,
@@ -426,7 +427,9 @@ fn expansion(cook: &CookSettings) -> boxes::ExpansionSettings {
     }
 }
 
-/// Each box with its faces pushed up to the surface (when `refine`), and on the grid.
+/// Each box with its index, its faces pushed up to the surface (when `refine`), and on the grid;
+/// both shrunk by what writing them as f32 may move them ([`Grid::f32_slack`]), as a face on
+/// the grid may touch the surface. Boxes that shrink away are left out.
 fn refine_boxes(
     mesh: &Mesh,
     grid: &Grid,
@@ -434,7 +437,7 @@ fn refine_boxes(
     solid: &[bool],
     voxel_boxes: &[VoxelBox],
     refine: bool,
-) -> Vec<(WorldBox, WorldBox)> {
+) -> Vec<(usize, WorldBox, WorldBox)> {
     let mut owner = vec![u32::MAX; grid.len()];
     for (id, b) in voxel_boxes.iter().enumerate() {
         for x in b.lo[0]..b.hi[0] {
@@ -453,10 +456,11 @@ fn refine_boxes(
     voxel_boxes
         .iter()
         .enumerate()
-        .map(|(id, b)| {
+        .filter_map(|(id, b)| {
             let on_grid = WorldBox::from_voxels(grid, b);
             let refined = refine.then(|| refine::refine(&input, id as u32, b));
-            (refined.unwrap_or(on_grid), on_grid)
+            let slack = grid.f32_slack();
+            Some((id, refined.unwrap_or(on_grid).shrunk(slack)?, on_grid.shrunk(slack)?))
         })
         .collect()
 }
@@ -464,11 +468,10 @@ fn refine_boxes(
 /// Near an opening a refined face can reach past the solid; such a box falls back to its
 /// voxels, and is dropped if even those show. Each box kept comes with its index in
 /// `candidates`.
-fn unexposed_boxes(views: &OpenViews, candidates: Vec<(WorldBox, WorldBox)>) -> (Vec<usize>, Vec<WorldBox>) {
+fn unexposed_boxes(views: &OpenViews, candidates: Vec<(usize, WorldBox, WorldBox)>) -> (Vec<usize>, Vec<WorldBox>) {
     candidates
         .into_par_iter()
-        .enumerate()
-        .filter_map(|(i, (refined, on_grid))| {
+        .filter_map(|(i, refined, on_grid)| {
             [refined, on_grid]
                 .into_iter()
                 .find(|b| views.hides_box(&b.triangles()))

@@ -148,6 +148,15 @@ impl WorldBox {
         }
     }
 
+    /// The box with every face moved `by` inwards; none where nothing is left.
+    pub fn shrunk(&self, by: f64) -> Option<WorldBox> {
+        let (lo, hi) = (self.lo() + by, self.hi() - by);
+        lo.cmplt(hi).all().then(|| WorldBox {
+            lo: lo.to_array(),
+            hi: hi.to_array(),
+        })
+    }
+
     pub fn lo(&self) -> DVec3 {
         DVec3::from_array(self.lo)
     }

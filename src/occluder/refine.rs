@@ -42,8 +42,7 @@ pub fn refine(input: &RefineInput, id: u32, b: &VoxelBox) -> WorldBox {
     }
 }
 
-/// How far the face (axis, side) of box [lo, hi] can move outwards: short of the surface by
-/// what writing the box as f32 may move it ([`Grid::f32_slack`]).
+/// How far the face (axis, side) of box [lo, hi] can move outwards.
 fn max_push(input: &RefineInput, id: u32, lo: DVec3, hi: DVec3, axis: usize, positive: bool) -> f64 {
     let h = input.grid.voxel_size;
     let slab = |t: f64| {
@@ -112,5 +111,5 @@ fn max_push(input: &RefineInput, id: u32, lo: DVec3, hi: DVec3, axis: usize, pos
             free = mid;
         }
     }
-    (free - input.grid.f32_slack()).max(0.0)
+    free
 }

@@ -112,8 +112,10 @@ pub fn cook_with_progress(
     let ((topology, input, openings, pieces), (key, key_ms)) = run.beside(
         move || cache_key(&given, cook),
         |run| {
+            let given_triangles = mesh.triangles.len();
             let mut topology = run.stage("orient", || orient_closed_components(&mut mesh))?;
-            let input = InputReport::new(&mesh, ingest, &topology);
+            run.note_duplicates(topology.duplicate_triangles);
+            let input = InputReport::new(given_triangles, ingest, &topology);
             let openings = run.close_openings(&mut mesh, &mut topology, cook.smallest_hole)?;
             let pieces = run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
                 find_surface_pieces(&mesh, &topology)
@@ -280,7 +282,7 @@ fn cook_voxels(
             &voxels.box_candidates,
             &voxels.box_sources,
             &chosen.boxes,
-            inner_count,
+            [inner_count, voxels.exposed_boxes],
         ),
         grid,
         quads: (quad_count, quads_shown),
@@ -806,6 +808,15 @@ impl<'a> Run<'a> {
                 count("hole"),
                 count("gap"),
                 count("seam")
+            ));
+        }
+    }
+
+    fn note_duplicates(&mut self, duplicates: usize) {
+        if duplicates > 0 {
+            self.notes.push(format!(
+                "left out {duplicates} triangles on the same three corners as another (as faces copied for \
+                 double-sided art are): the volume they close counts once"
             ));
         }
     }

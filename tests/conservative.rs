@@ -60,6 +60,24 @@ fn cube_with_one_face_flipped() {
     assert_eq!(q.false_pixels, 0);
 }
 
+/// Double-sided art often copies each face wound the other way; the two windings cancel, which
+/// left no inside and an occluder of surface pieces alone.
+#[test]
+fn a_torus_made_double_sided_cooks_as_the_torus() {
+    let torus = torus(1.0, 0.45, 48, 24);
+    let mut double_sided = torus.clone();
+    double_sided
+        .triangles
+        .extend(torus.triangles.iter().map(|&[a, b, c]| [a, c, b]));
+    let (single, double) = (cook_evaluated(torus.clone()), cook_evaluated(double_sided));
+    let topology = &double.report.input.topology;
+    assert_eq!(topology.duplicate_triangles, torus.triangles.len());
+    assert_eq!(topology.closed_components, 1);
+    assert!(double.report.boxes.kept > 0, "{:?}", double.report.notes);
+    assert_eq!(double.occluder.mesh().positions, single.occluder.mesh().positions);
+    assert_eq!(double.report.quality.unwrap().false_pixels, 0);
+}
+
 #[test]
 fn torus_keeps_its_hole_open() {
     let (major, minor) = (1.0f32, 0.45f32);

@@ -92,11 +92,11 @@ pub struct InputReport {
 }
 
 impl InputReport {
-    /// The mesh as read: before any opening is closed.
-    pub fn new(mesh: &crate::mesh::Mesh, ingest: IngestStats, topology: &Topology) -> InputReport {
+    /// The mesh as read (`triangles` of it): before any opening is closed.
+    pub fn new(triangles: usize, ingest: IngestStats, topology: &Topology) -> InputReport {
         InputReport {
             ingest,
-            triangles: mesh.triangles.len(),
+            triangles,
             topology: topology.clone(),
         }
     }
@@ -140,18 +140,19 @@ pub struct BoxReport {
 impl BoxReport {
     /// `voxel_boxes` as expanded, `candidates` those that do not show through an opening (the
     /// one at `sources[i]` of `voxel_boxes` refined into `candidates[i]`), and `kept` the indices
-    /// of the chosen candidates; `inner` counts the inner voxels.
+    /// of the chosen candidates; `inner` counts the inner voxels, `exposed` the boxes an opening
+    /// showed.
     pub(super) fn new(
         voxel_boxes: &[VoxelBox],
         candidates: &[WorldBox],
         sources: &[usize],
         kept: &[usize],
-        inner: usize,
+        [inner, exposed]: [usize; 2],
     ) -> BoxReport {
         let kept_voxels: usize = kept.iter().map(|&i| voxel_boxes[sources[i]].voxels()).sum();
         BoxReport {
             candidates: voxel_boxes.len(),
-            exposed: voxel_boxes.len() - candidates.len(),
+            exposed,
             kept: kept.len(),
             inner_volume_covered: if inner > 0 {
                 kept_voxels as f64 / inner as f64

@@ -26,6 +26,8 @@ pub struct Topology {
     pub inverted_components: usize,
     /// Flipped faces of closed components, turned to agree with the rest.
     pub reoriented_triangles: usize,
+    /// Triangles on the same three corners as an earlier one, left out.
+    pub duplicate_triangles: usize,
     #[serde(skip)]
     pub boundary: Vec<BoundaryEdge>,
     /// Per triangle: whether its component has an open boundary (no volume of its own).
@@ -33,10 +35,11 @@ pub struct Topology {
     pub open_triangles: Vec<bool>,
 }
 
-/// Turns the flipped faces of closed components to agree with the rest
-/// ([`close_flipped_components`]), then inverted closed components outwards, in place, and
-/// returns the topology of the result.
+/// Leaves out repeated triangles ([`remove_duplicate_triangles`]), turns the flipped faces of
+/// closed components to agree with the rest ([`close_flipped_components`]), then inverted
+/// closed components outwards, in place, and returns the topology of the result.
 pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
+    let duplicate_triangles = remove_duplicate_triangles(mesh);
     let component = components(mesh);
     let count = component.iter().copied().max().map_or(0, |m| m as usize + 1);
     let uses = directed_uses(mesh);
@@ -65,6 +68,7 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
         closed_components: open.iter().filter(|o| !**o).count(),
         inverted_components: inverted.iter().filter(|i| **i).count(),
         reoriented_triangles,
+        duplicate_triangles,
         open_triangles: mesh
             .triangles
             .iter()
@@ -86,6 +90,32 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
         }
     }
     topology
+}
+
+/// Leaves out, in place, each triangle on the same three corners as an earlier one, and returns
+/// how many. A face copied with its winding reversed, as double-sided art often is, cancels
+/// the original's winding and would leave no inside; a copy either way adds no surface.
+fn remove_duplicate_triangles(mesh: &mut Mesh) -> usize {
+    let mut corners: Vec<([u32; 3], u32)> = mesh
+        .triangles
+        .iter()
+        .zip(0..)
+        .map(|(tri, t)| {
+            let mut sorted = *tri;
+            sorted.sort_unstable();
+            (sorted, t)
+        })
+        .collect();
+    corners.par_sort_unstable();
+    let mut repeated = vec![false; mesh.triangles.len()];
+    for same in corners.chunk_by(|a, b| a.0 == b.0) {
+        for &(_, t) in &same[1..] {
+            repeated[t as usize] = true;
+        }
+    }
+    let mut flags = repeated.iter();
+    mesh.triangles.retain(|_| !flags.next().is_some_and(|&r| r));
+    repeated.iter().filter(|&&r| r).count()
 }
 
 struct EdgeUses {
@@ -281,5 +311,20 @@ mod tests {
         let topology = orient_closed_components(&mut open);
         assert_eq!((topology.closed_components, topology.reoriented_triangles), (0, 0));
         assert_eq!(open.triangles, before);
+    }
+
+    #[test]
+    fn a_cube_doubled_for_both_sides_is_one_closed_cube_again() {
+        let outward = cube(&[]);
+        // Each face copied wound the other way, then a third copy of one face, as given.
+        let mut doubled = outward.clone();
+        doubled
+            .triangles
+            .extend(outward.triangles.iter().map(|&[a, b, c]| [a, c, b]));
+        doubled.triangles.push(outward.triangles[5]);
+        let topology = orient_closed_components(&mut doubled);
+        assert_eq!((topology.duplicate_triangles, topology.closed_components), (13, 1));
+        assert!(topology.boundary.is_empty());
+        assert_eq!(doubled.triangles, outward.triangles);
     }
 }

@@ -275,6 +275,9 @@ fn cook_voxels(
     run.note_exposure(voxels.open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
     let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
     run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
+    if no_box_fits || occluder.triangles() == 0 {
+        run.note_stray_vertex(mesh);
+    }
     let parts = VoxelParts {
         voxels: VoxelReport::new(&voxels.surface, &voxels.inside, inner_count, voxels.exposed_voxels),
         boxes: BoxReport::new(
@@ -343,7 +346,16 @@ fn voxel_stages(
         boxes::expand(&inner, grid.dims, &expansion(cook))
     })?;
     let refined = run.stage("refine", || {
-        refine_boxes(mesh, grid, winding_field(), &inside.solid, &voxel_boxes, cook.refine)
+        let open = open_views.is_some();
+        refine_boxes(
+            mesh,
+            grid,
+            winding_field(),
+            &inside.solid,
+            &voxel_boxes,
+            cook.refine,
+            open,
+        )
     })?;
     let kept = refined.len();
     let (box_sources, box_candidates): (Vec<usize>, Vec<WorldBox>) = match &open_views {
@@ -429,9 +441,10 @@ fn expansion(cook: &CookSettings) -> boxes::ExpansionSettings {
     }
 }
 
-/// Each box with its index, its faces pushed up to the surface (when `refine`), and on the grid;
-/// both shrunk by what writing them as f32 may move them ([`Grid::f32_slack`]), as a face on
-/// the grid may touch the surface. Boxes that shrink away are left out.
+/// Each box with its index, its faces pushed up to the surface (when `refine`), and on the grid.
+/// Where writing them as f32 may move a corner ([`Grid::f32_slack`]), as a face on the grid may
+/// touch the surface, both are rounded inwards to what f32 holds, those of an open mesh after
+/// shrinking by that much, as its exposure test draws in f32; boxes that vanish are left out.
 fn refine_boxes(
     mesh: &Mesh,
     grid: &Grid,
@@ -439,6 +452,7 @@ fn refine_boxes(
     solid: &[bool],
     voxel_boxes: &[VoxelBox],
     refine: bool,
+    open: bool,
 ) -> Vec<(usize, WorldBox, WorldBox)> {
     let mut owner = vec![u32::MAX; grid.len()];
     for (id, b) in voxel_boxes.iter().enumerate() {
@@ -448,6 +462,7 @@ fn refine_boxes(
             }
         }
     }
+    let slack = grid.f32_slack();
     let input = refine::RefineInput {
         mesh,
         grid,
@@ -461,8 +476,11 @@ fn refine_boxes(
         .filter_map(|(id, b)| {
             let on_grid = WorldBox::from_voxels(grid, b);
             let refined = refine.then(|| refine::refine(&input, id as u32, b));
-            let slack = grid.f32_slack();
-            Some((id, refined.unwrap_or(on_grid).shrunk(slack)?, on_grid.shrunk(slack)?))
+            let exact = |b: WorldBox| match slack > 0.0 {
+                true => b.rounded_inward(if open { slack } else { 0.0 }),
+                false => Some(b),
+            };
+            Some((id, exact(refined.unwrap_or(on_grid))?, exact(on_grid)?))
         })
         .collect()
 }
@@ -812,11 +830,21 @@ impl<'a> Run<'a> {
         }
     }
 
+    fn note_stray_vertex(&mut self, mesh: &Mesh) {
+        if let Some(p) = mesh.stray_vertex() {
+            self.notes.push(format!(
+                "a vertex at ({:?}, {:?}, {:?}) lies far outside the rest of the mesh: the voxel grid spans the gap, \
+                 so the rest is under a few voxels; a stray vertex from the export?",
+                p.x, p.y, p.z
+            ));
+        }
+    }
+
     fn note_duplicates(&mut self, duplicates: usize) {
         if duplicates > 0 {
             self.notes.push(format!(
-                "left out {duplicates} triangles on the same three corners as another (as faces copied for \
-                 double-sided art are): the volume they close counts once"
+                "left out {duplicates} copied triangles: every triangle of their parts had a copy on the same \
+                 three corners, as faces copied for double-sided art do, so each part's volume counts once"
             ));
         }
     }

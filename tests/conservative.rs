@@ -129,6 +129,23 @@ fn wall_thinner_than_a_voxel_gives_no_box() {
 }
 
 #[test]
+fn a_stray_vertex_is_named_when_no_box_fits() {
+    let mut mesh = torus(1.0, 0.45, 48, 24);
+    mesh.positions[100] = Vec3::splat(-1e25);
+    let cooked = cook(mesh, Default::default(), 0.0, &common::defaults(), false).expect("cooks");
+    assert_eq!(cooked.report.voxels.inner, 0);
+    assert!(
+        cooked
+            .report
+            .notes
+            .iter()
+            .any(|n| n.contains("a vertex at (-1e25, -1e25, -1e25)")),
+        "{:?}",
+        cooked.report.notes
+    );
+}
+
+#[test]
 fn budget_and_key_are_respected() {
     let mesh = torus(1.0, 0.45, 48, 24);
     let cooked = cook_evaluated(mesh.clone());

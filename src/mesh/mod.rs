@@ -462,6 +462,34 @@ impl Mesh {
             })
     }
 
+    /// The vertex farthest outside the bounds of the others, where it stretches the mesh's
+    /// bounds (and so its voxel grid) to over `STRAY_SPAN` times theirs: the others leaving out
+    /// the outermost hundredth, and at least one, on each side along each axis.
+    pub fn stray_vertex(&self) -> Option<Vec3> {
+        const STRAY_SPAN: f32 = 1e3;
+        let outer = (self.positions.len() / 100).max(1);
+        let mut along = Vec::with_capacity(self.positions.len());
+        let mut inner = (Vec3::ZERO, Vec3::ZERO);
+        for k in 0..3 {
+            along.clear();
+            along.extend(self.positions.iter().map(|p| p[k]));
+            if along.len() < 2 * outer + 2 {
+                return None;
+            }
+            let (_, &mut lo, rest) = along.select_nth_unstable_by(outer, f32::total_cmp);
+            let last = rest.len() - outer;
+            let (_, &mut hi, _) = rest.select_nth_unstable_by(last - 1, f32::total_cmp);
+            (inner.0[k], inner.1[k]) = (lo, hi);
+        }
+        let (lo, hi) = self.bounds();
+        let span = (inner.1 - inner.0).max_element();
+        let outside = |p: &&Vec3| (p.clamp(inner.0, inner.1) - **p).length();
+        ((hi - lo).max_element() > STRAY_SPAN * span && span > 0.0)
+            .then(|| self.positions.iter().max_by(|a, b| outside(a).total_cmp(&outside(b))))
+            .flatten()
+            .copied()
+    }
+
     /// A sphere around the bounds' centre that holds every vertex.
     pub fn bounding_sphere(&self) -> (glam::DVec3, f64) {
         let (lo, hi) = self.bounds();
@@ -482,5 +510,23 @@ impl Mesh {
     /// The three corners of triangle `t`.
     pub fn corners(&self, t: usize) -> [Vec3; 3] {
         self.triangles[t].map(|i| self.positions[i as usize])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    #[test]
+    fn a_vertex_far_outside_the_rest_is_stray_and_a_whole_mesh_has_none() {
+        let mut mesh = super::shapes::torus(1.0, 0.45, 32, 16);
+        assert_eq!(mesh.stray_vertex(), None);
+        // A long thin mesh is not stray: every vertex has neighbours along it.
+        let mut long = mesh.clone();
+        long.positions.iter_mut().for_each(|p| p.x *= 1e4);
+        assert_eq!(long.stray_vertex(), None);
+        let far = Vec3::new(1e20, -3.0, 1e20);
+        mesh.positions[7] = far;
+        assert_eq!(mesh.stray_vertex(), Some(far));
     }
 }

@@ -26,7 +26,7 @@ pub struct Topology {
     pub inverted_components: usize,
     /// Flipped faces of closed components, turned to agree with the rest.
     pub reoriented_triangles: usize,
-    /// Triangles on the same three corners as an earlier one, left out.
+    /// Copies left out of components whose every triangle has one ([`remove_doubled_copies`]).
     pub duplicate_triangles: usize,
     #[serde(skip)]
     pub boundary: Vec<BoundaryEdge>,
@@ -35,13 +35,13 @@ pub struct Topology {
     pub open_triangles: Vec<bool>,
 }
 
-/// Leaves out repeated triangles ([`remove_duplicate_triangles`]), turns the flipped faces of
+/// Leaves out the copies of doubled components ([`remove_doubled_copies`]), turns the flipped faces of
 /// closed components to agree with the rest ([`close_flipped_components`]), then inverted
 /// closed components outwards, in place, and returns the topology of the result.
 pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
-    let duplicate_triangles = remove_duplicate_triangles(mesh);
     let component = components(mesh);
     let count = component.iter().copied().max().map_or(0, |m| m as usize + 1);
+    let duplicate_triangles = remove_doubled_copies(mesh, &component, count);
     let uses = directed_uses(mesh);
     let turned = close_flipped_components(mesh, &uses, &component, count);
     let reoriented_triangles = turned.iter().filter(|&&t| t).count();
@@ -92,10 +92,12 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
     topology
 }
 
-/// Leaves out, in place, each triangle on the same three corners as an earlier one, and returns
-/// how many. A face copied with its winding reversed, as double-sided art often is, cancels
-/// the original's winding and would leave no inside; a copy either way adds no surface.
-fn remove_duplicate_triangles(mesh: &mut Mesh) -> usize {
+/// Leaves out, in place, the copies in each component all of whose triangles share their three
+/// corners with another: all but the first on the same corners. Returns how many. A face
+/// copied with its winding reversed, as double-sided art often is, cancels the original's
+/// winding and would leave no inside; a copy either way adds no surface. Where only some
+/// triangles have a copy (a fold, a fin), a copy is part of the surface, and stays.
+fn remove_doubled_copies(mesh: &mut Mesh, component: &[u32], count: usize) -> usize {
     let mut corners: Vec<([u32; 3], u32)> = mesh
         .triangles
         .iter()
@@ -108,14 +110,23 @@ fn remove_duplicate_triangles(mesh: &mut Mesh) -> usize {
         .collect();
     corners.par_sort_unstable();
     let mut repeated = vec![false; mesh.triangles.len()];
+    let mut doubled = vec![true; count];
     for same in corners.chunk_by(|a, b| a.0 == b.0) {
-        for &(_, t) in &same[1..] {
-            repeated[t as usize] = true;
+        let (first, copies) = same.split_first().expect("chunks are not empty");
+        match copies.is_empty() {
+            true => doubled[component[first.0[0] as usize] as usize] = false,
+            false => copies.iter().for_each(|&(_, t)| repeated[t as usize] = true),
         }
     }
-    let mut flags = repeated.iter();
-    mesh.triangles.retain(|_| !flags.next().is_some_and(|&r| r));
-    repeated.iter().filter(|&&r| r).count()
+    let mut left_out = 0;
+    let mut t = 0;
+    mesh.triangles.retain(|tri| {
+        let copy = repeated[t] && doubled[component[tri[0] as usize] as usize];
+        t += 1;
+        left_out += usize::from(copy);
+        !copy
+    });
+    left_out
 }
 
 struct EdgeUses {
@@ -326,5 +337,12 @@ mod tests {
         assert_eq!((topology.duplicate_triangles, topology.closed_components), (13, 1));
         assert!(topology.boundary.is_empty());
         assert_eq!(doubled.triangles, outward.triangles);
+        // One face copied, a fold of the surface: it stays.
+        let mut folded = outward.clone();
+        folded
+            .triangles
+            .extend([outward.triangles[0], outward.triangles[1]].map(|[a, b, c]| [a, c, b]));
+        let topology = orient_closed_components(&mut folded);
+        assert_eq!((topology.duplicate_triangles, folded.triangles.len()), (0, 14));
     }
 }

@@ -148,12 +148,21 @@ impl WorldBox {
         }
     }
 
-    /// The box with every face moved `by` inwards; none where nothing is left.
-    pub fn shrunk(&self, by: f64) -> Option<WorldBox> {
-        let (lo, hi) = (self.lo() + by, self.hi() - by);
-        lo.cmplt(hi).all().then(|| WorldBox {
-            lo: lo.to_array(),
-            hi: hi.to_array(),
+    /// The largest box whose corners f32 holds exactly, so that writing it moves none of them,
+    /// within this one with every face moved `by` inwards; none where nothing is left.
+    pub fn rounded_inward(&self, by: f64) -> Option<WorldBox> {
+        let up = |x: f64| {
+            let f = x as f32;
+            if f64::from(f) < x { f.next_up() } else { f }
+        };
+        let down = |x: f64| {
+            let f = x as f32;
+            if f64::from(f) > x { f.next_down() } else { f }
+        };
+        let (lo, hi) = (self.lo.map(|x| up(x + by)), self.hi.map(|x| down(x - by)));
+        (0..3).all(|k| lo[k] < hi[k]).then(|| WorldBox {
+            lo: lo.map(f64::from),
+            hi: hi.map(f64::from),
         })
     }
 
@@ -188,5 +197,29 @@ impl WorldBox {
             out[2 * f + 1] = [c[q[0]], c[q[2]], c[q[3]]];
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::WorldBox;
+
+    #[test]
+    fn a_box_rounded_inward_lies_within_and_f32_holds_its_corners() {
+        let b = WorldBox {
+            lo: [3e5 + 0.01, -7e5 - 0.013, 0.1],
+            hi: [3e5 + 1.37, -7e5 + 0.9, 0.3],
+        };
+        let exact = |x: f64| f64::from(x as f32) == x;
+        for by in [0.0, 0.05] {
+            let r = b.rounded_inward(by).expect("room left");
+            for k in 0..3 {
+                assert!(b.lo[k] + by <= r.lo[k] && r.hi[k] <= b.hi[k] - by, "{r:?}");
+                assert!(exact(r.lo[k]) && exact(r.hi[k]), "{r:?}");
+                // No f32 between the bound and the rounded corner.
+                assert!(f64::from((r.lo[k] as f32).next_down()) < b.lo[k] + by);
+            }
+        }
+        assert_eq!(b.rounded_inward(0.2), None);
     }
 }

@@ -486,8 +486,8 @@ fn refine_boxes(
 }
 
 /// Near an opening a refined face can reach past the solid; such a box falls back to its
-/// voxels, and is dropped if even those show. Each box kept comes with its index in
-/// `candidates`.
+/// voxels, and is dropped if even those show. Each box kept comes with the index of the voxel
+/// box it came from.
 fn unexposed_boxes(views: &OpenViews, candidates: Vec<(usize, WorldBox, WorldBox)>) -> (Vec<usize>, Vec<WorldBox>) {
     candidates
         .into_par_iter()

@@ -3,7 +3,8 @@
 //! triangulation of the outline's vertices, by spade). A piece lies on the surface, so it hides
 //! exactly what that part of the surface hides; a closed part's new triangles lie on it or just
 //! under it, where its region bends. Pieces are drawn double-sided, but for a closed part chosen
-//! whole, which faces out with the solid.
+//! whole, which faces out with the solid; a double-sided piece whose region bends keeps the
+//! region's own triangles, as either side may be seen.
 
 use crate::geom::buckets::Buckets;
 use crate::mesh::Mesh;
@@ -134,8 +135,11 @@ fn piece_of(mesh: &Mesh, region: &[usize], double_sided: bool, tolerance: f64) -
             .map(|&t| mesh.corners(t).map(|p| p.as_dvec3().to_array()))
             .collect()
     };
+    // A double-sided piece is seen from both sides, so new triangles that span where the region
+    // bends would stand in front of it from one; only an exactly flat region's are kept.
     let triangles = match region.len() {
         1 => own(),
+        _ if double_sided && !lies_flat(mesh, region, tolerance * 1e-3) => own(),
         _ => retriangulate(mesh, region, tolerance)
             .filter(|t| t.len() < region.len())
             .map(|t| if double_sided { t } else { under_region(mesh, region, t) })
@@ -147,6 +151,18 @@ fn piece_of(mesh: &Mesh, region: &[usize], double_sided: bool, tolerance: f64) -
         source_triangles: region.len(),
         double_sided,
     }
+}
+
+/// Whether every corner of the region lies within `within` of its first triangle's plane.
+fn lies_flat(mesh: &Mesh, region: &[usize], within: f64) -> bool {
+    let Some(n) = normal(mesh, region[0]) else {
+        return false;
+    };
+    let offset = n.dot(mesh.corners(region[0])[0].as_dvec3());
+    region
+        .iter()
+        .flat_map(|&t| mesh.corners(t))
+        .all(|p| (n.dot(p.as_dvec3()) - offset).abs() <= within)
 }
 
 /// A closed part's new triangles, moved in along the normal of the region's first triangle
@@ -590,11 +606,19 @@ mod tests {
         for c in closed[0].triangles.iter().flatten() {
             assert!(c[2] <= lowest, "{c:?} above {lowest}");
         }
-        // An open part's piece has no inside to go to, and an exactly flat one stays put.
+        // An open part's piece has no inside to go to, and is seen from both sides: where its
+        // region bends, it keeps the region's own triangles. An exactly flat one stays put.
         let open = find(&mesh, &[true; 32], 1e-6);
-        assert!(open[0].triangles.iter().flatten().all(|c| c[2] == 0.0));
-        let flat = find(&grid(4), &[false; 32], 1e-6);
-        assert!(flat[0].triangles.iter().flatten().all(|c| c[2] == 0.0));
+        assert_eq!(open[0].triangles.len(), 32);
+        assert!(mesh.triangles.iter().all(|t| {
+            let own = t.map(|v| mesh.positions[v as usize].as_dvec3().to_array());
+            open[0].triangles.contains(&own)
+        }));
+        for side in [false, true] {
+            let flat = find(&grid(4), &[side; 32], 1e-6);
+            assert_eq!(flat[0].triangles.len(), 2);
+            assert!(flat[0].triangles.iter().flatten().all(|c| c[2] == 0.0));
+        }
     }
 
     #[test]

@@ -274,10 +274,7 @@ fn cook_voxels(
     let exposed = [voxels.exposed_voxels, voxels.exposed_boxes, quads_shown[0]];
     run.note_exposure(voxels.open_views.as_ref().map_or(0, OpenViews::cracks), quads_shown[1]);
     let no_box_fits = inner_count == 0 && uses(Shape::Boxes);
-    run.note_outcome(exposed, no_box_fits, cook.resolution, &occluder);
-    if no_box_fits || occluder.triangles() == 0 {
-        run.note_stray_vertex(mesh);
-    }
+    run.note_outcome(exposed, no_box_fits, cook.resolution, (mesh, &occluder));
     let parts = VoxelParts {
         voxels: VoxelReport::new(&voxels.surface, &voxels.inside, inner_count, voxels.exposed_voxels),
         boxes: BoxReport::new(
@@ -463,6 +460,10 @@ fn refine_boxes(
         }
     }
     let slack = grid.f32_slack();
+    let exact = |b: WorldBox| match slack > 0.0 {
+        true => b.rounded_inward(if open { slack } else { 0.0 }),
+        false => Some(b),
+    };
     let input = refine::RefineInput {
         mesh,
         grid,
@@ -476,10 +477,6 @@ fn refine_boxes(
         .filter_map(|(id, b)| {
             let on_grid = WorldBox::from_voxels(grid, b);
             let refined = refine.then(|| refine::refine(&input, id as u32, b));
-            let exact = |b: WorldBox| match slack > 0.0 {
-                true => b.rounded_inward(if open { slack } else { 0.0 }),
-                false => Some(b),
-            };
             Some((id, exact(refined.unwrap_or(on_grid))?, exact(on_grid)?))
         })
         .collect()
@@ -883,7 +880,15 @@ impl<'a> Run<'a> {
 
     /// Notes on what was left out, and on why the occluder may be empty or small: `exposed`
     /// counts the voxels, boxes and quads that show through an opening.
-    fn note_outcome(&mut self, exposed: [usize; 3], no_inner_voxels: bool, resolution: usize, occluder: &Occluder) {
+    /// What was left out, and why the occluder of `mesh` is poor where it is: no inner voxels, or
+    /// nothing at all, perhaps from a stray vertex.
+    fn note_outcome(
+        &mut self,
+        exposed: [usize; 3],
+        no_inner_voxels: bool,
+        resolution: usize,
+        (mesh, occluder): (&Mesh, &Occluder),
+    ) {
         let [voxels, boxes, quads] = exposed;
         if voxels + boxes + quads > 0 {
             self.notes.push(format!(
@@ -895,9 +900,13 @@ impl<'a> Run<'a> {
                 "no inner voxels at resolution {resolution}: the mesh encloses no volume thicker than a voxel, so no box fits"
             ));
         }
-        if occluder.triangles() == 0 {
+        let empty = occluder.triangles() == 0;
+        if empty {
             self.notes
                 .push("the occluder is empty: no piece added enough silhouette within the triangle budget".into());
+        }
+        if no_inner_voxels || empty {
+            self.note_stray_vertex(mesh);
         }
     }
 

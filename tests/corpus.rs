@@ -15,7 +15,10 @@ const CLOSED: [&str; 5] = ["spot.obj", "cow.obj", "fandisk.obj", "homer.obj", "d
 /// Every open mesh of the corpus, with its coverage (%) at 64 views when the floor was set; the
 /// test allows a point less. Surface pieces (the mesh's own flat regions) lifted most of them.
 const OPEN: [(&str, f64); 12] = [
-    ("teapot.obj", 33.33),
+    // Cameras in the gap between its lid and rim see into the body: what shows only through
+    // the gap counts as seen (33.3% before they were placed there, with false pixels at 4,096
+    // views).
+    ("teapot.obj", 24.58),
     ("sphere-with-hole.stl", 97.55),
     ("suzanne.obj", 96.38),
     ("kenney-building-small-a.glb", 99.67),
@@ -161,6 +164,26 @@ fn three_faces_of_a_tetrahedron_are_covered_by_themselves() {
     assert_eq!(q.false_pixels, 0);
 }
 
+/// Lines through the teapot's lid gap reach its inside from a narrow band of directions, which
+/// 1,024 views cross but rarely: judged from 4,096 at 512 pixels, its occluder hides none of them
+/// (it hid 3 pixels before cameras were placed in the gap).
+#[test]
+fn nothing_seen_through_the_teapots_lid_gap_is_hidden() {
+    let Some(dir) = common::corpus() else { return };
+    let path = dir.join("teapot.obj");
+    let (_, cooked) = cook_file(&path);
+    let (mut mesh, _) = load_file(&path, &IngestLimits::default()).expect("loads");
+    let topology = orient_closed_components(&mut mesh);
+    let mut settings = common::defaults().eval;
+    (settings.views, settings.pixels) = (4096, 512);
+    let judged = evaluate(&mesh, &topology.boundary, &cooked.occluder.mesh(), &settings, None).expect("evaluates");
+    println!(
+        "teapot at 4,096 views of 512 pixels: coverage {:.2}%",
+        judged.coverage * 100.0
+    );
+    assert_eq!(judged.false_pixels_non_below, 0);
+}
+
 /// The teapot's lid sits in its rim across a gap 0.1 wide, through which its inside shows. With
 /// smallest_hole 0.15 the gap counts as closed, and the occluder is judged against the teapot
 /// with its two rim loops at y = 2.4 joined.
@@ -243,29 +266,6 @@ fn pandora_as_one_mesh_gets_a_conservative_occluder() {
     let (q, _) = cook_file(&levels.join("pandora/pandora.obj"));
     assert!(q.occluder_triangles > 0 && q.occluder_triangles <= 2000, "{q:?}");
     assert_eq!(q.false_pixels_non_below, 0);
-}
-
-/// The teapot's exposure test drops a box, so candidates and voxel boxes are numbered apart:
-/// the share of the inner volume the kept boxes fill must come from the boxes kept. Unrefined,
-/// a kept box is its voxels exactly.
-#[test]
-fn inner_volume_covered_counts_the_kept_boxes_on_an_open_mesh() {
-    let Some(dir) = common::corpus() else { return };
-    let (mesh, stats) = load_file(&dir.join("teapot.obj"), &IngestLimits::default()).expect("teapot loads");
-    let settings = occluder_cook::config::load(None, &[("cook.refine".into(), toml::Value::Boolean(false))])
-        .expect("settings load");
-    let report = cook(mesh, stats, 0.0, &settings, false).expect("cooks").report;
-    assert!(report.boxes.exposed > 0 && report.boxes.kept > 0, "{:?}", report.boxes);
-    let voxel = report.grid.voxel_size.powi(3);
-    let kept_voxels: f64 = report
-        .boxes
-        .kept_boxes
-        .iter()
-        .map(|b| (0..3).map(|k| b.hi[k] - b.lo[k]).product::<f64>() / voxel)
-        .sum();
-    let expected = kept_voxels / report.voxels.inner as f64;
-    let covered = report.boxes.inner_volume_covered;
-    assert!((covered - expected).abs() < 1e-6, "{covered} against {expected}");
 }
 
 /// Every file of the formats folder cooks with no false pixel, judged against the geometry that

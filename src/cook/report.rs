@@ -264,3 +264,23 @@ impl Cooked {
         glb::write(&parts, extras)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_inner_volume_covered_counts_the_voxels_of_the_boxes_kept() {
+        // Three voxel boxes of 8, 27 and 1 voxels; the second showed through an opening, so
+        // the candidates are the first and the third, and the selection keeps the third.
+        let voxel_boxes = [([0, 0, 0], [2, 2, 2]), ([2, 0, 0], [5, 3, 3]), ([5, 0, 0], [6, 1, 1])]
+            .map(|(lo, hi)| VoxelBox { lo, hi });
+        let candidates = [WorldBox {
+            lo: [0.0; 3],
+            hi: [1.0; 3],
+        }; 2];
+        let report = BoxReport::new(&voxel_boxes, &candidates, &[0, 2], &[1], [40, 1]);
+        assert_eq!((report.candidates, report.exposed, report.kept), (3, 1, 1));
+        assert_eq!(report.inner_volume_covered, 1.0 / 40.0);
+    }
+}

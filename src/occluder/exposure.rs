@@ -338,7 +338,7 @@ impl OpenViews {
         let pixel = 2.0 * radius / PIXELS as f64;
         // Each mostly serial: side by side.
         let (eyes, cracked) = rayon::join(
-            || opening_eyes(mesh, boundary, winding_field()),
+            || opening_eyes(mesh, boundary, winding_field(), pixel),
             || crack_edges(mesh, boundary, pixel, TOUCHING * radius),
         );
         let mut horizons = Vec::new();
@@ -1083,12 +1083,14 @@ impl CrackSplit {
 /// Where to place cameras in the mesh's openings (connected runs of boundary edges), at most
 /// [`MAX_EYES`], the largest openings first. Each opening gives its centre and points of its rim
 /// spread farthest apart, drawn a fifth of the way towards the centre. A point where the winding
-/// number is near a half lies in a real gap and stays; any other is moved along the opening's
-/// normal to the nearest point outside the solid, so that a camera where another part fills the
-/// opening sees in only through a real gap. Each camera comes with the height it counts up to:
-/// its opening's highest point, or its own where it moved higher. Cameras whose height is at the
-/// very bottom of the mesh are left out: nothing lies lower for them to show.
-fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField) -> Vec<(DVec3, f64)> {
+/// number is near a half lies in a real gap and stays. Where another part fills the middle of an
+/// opening (a lid in a rim), a rim point is tried instead two pixels (`pixel`) off the rim, into
+/// the gap beside it: towards the centre, or on from the rim's triangles. Failing those, a point
+/// is moved along the opening's normal to the nearest point outside the solid, so that it sees
+/// in only through a real gap. Each camera comes with the height it counts up to: its opening's
+/// highest point, or its own where it moved higher. Cameras whose height is at the very bottom
+/// of the mesh are left out: nothing lies lower for them to show.
+fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pixel: f64) -> Vec<(DVec3, f64)> {
     let mut neighbours: HashMap<u32, Vec<&BoundaryEdge>> = HashMap::new();
     for e in boundary {
         neighbours.entry(e.a).or_default().push(e);
@@ -1098,17 +1100,17 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField) ->
     starts.sort_unstable();
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
     let mut visited = HashSet::new();
-    let extent = |rim: &[DVec3]| {
-        let (lo, hi) = crate::mesh::point_bounds(rim.iter().copied());
+    let extent = |rim: &[u32]| {
+        let (lo, hi) = crate::mesh::point_bounds(rim.iter().map(|&v| position(v)));
         (hi - lo).length()
     };
-    // Each opening's rim points, vector area and extent.
-    let mut openings: Vec<(Vec<DVec3>, DVec3, f64)> = Vec::new();
+    // Each opening's rim vertices, vector area and extent.
+    let mut openings: Vec<(Vec<u32>, DVec3, f64)> = Vec::new();
     for start in starts {
         let (mut stack, mut rim, mut area) = (vec![start], Vec::new(), DVec3::ZERO);
         while let Some(v) = stack.pop() {
             if visited.insert(v) {
-                rim.push(position(v));
+                rim.push(v);
                 for e in &neighbours[&v] {
                     stack.push(if e.a == v { e.b } else { e.a });
                     // Each edge is met from both ends: counted from its first.
@@ -1124,36 +1126,59 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField) ->
         }
     }
     openings.sort_by(|a, b| b.2.total_cmp(&a.2));
+    let off_rim = off_rim(mesh, boundary);
     let (lo, hi) = mesh.bounds();
     let size = f64::from((hi - lo).length());
     let bottom = f64::from(lo.y) + 1e-3 * size;
+    let open = |p: DVec3| (field.winding(p) - 0.5).abs() < OPEN_WINDING;
     let mut eyes = Vec::new();
     for (rim, area, opening_size) in &openings {
-        let centre = rim.iter().sum::<DVec3>() / rim.len() as f64;
-        let mut chosen = vec![centre];
+        let centre = rim.iter().map(|&v| position(v)).sum::<DVec3>() / rim.len() as f64;
+        let mut chosen: Vec<Option<u32>> = vec![None];
         while chosen.len() < EYES_PER_OPENING.min(rim.len() + 1) {
-            let distance = |p: &DVec3| chosen.iter().map(|c| c.distance(*p)).fold(f64::INFINITY, f64::min);
-            chosen.extend(rim.iter().max_by(|a, b| distance(a).total_cmp(&distance(b))).copied());
+            let at = |c: &Option<u32>| c.map_or(centre, position);
+            let distance = |v: u32| {
+                chosen
+                    .iter()
+                    .map(|c| at(c).distance(position(v)))
+                    .fold(f64::INFINITY, f64::min)
+            };
+            chosen.extend(
+                rim.iter()
+                    .max_by(|&&a, &&b| distance(a).total_cmp(&distance(b)))
+                    .map(|&v| Some(v)),
+            );
         }
         let normal = area.try_normalize().unwrap_or(DVec3::Y);
         let reach = opening_size.max(1e-3 * size);
-        let in_gap = |p: DVec3| {
-            if (field.winding(p) - 0.5).abs() < OPEN_WINDING {
-                return Some(p);
-            }
+        let outside_along_normal = |p: DVec3| {
             // Steps of a sixteenth of the opening, both ways, nearest first.
             (1..=16)
                 .flat_map(|k| [1.0, -1.0].map(|side| p + normal * (side * reach * k as f64 / 16.0)))
                 .find(|&q| field.winding(q) < 0.5)
         };
-        let points = chosen
-            .iter()
-            .enumerate()
-            .map(|(k, &p)| if k == 0 { p } else { p + (centre - p) * 0.2 });
-        let top = rim.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
+        let eye = |c: &Option<u32>| {
+            let Some(v) = *c else {
+                return Some(centre)
+                    .filter(|&p| open(p))
+                    .or_else(|| outside_along_normal(centre));
+            };
+            let drawn_in = position(v) + (centre - position(v)) * 0.2;
+            if open(drawn_in) {
+                return Some(drawn_in);
+            }
+            // Two pixels off the rim: towards the centre, then away from the rim's triangles.
+            let off = [centre - position(v), off_rim.get(&v).copied().unwrap_or_default()];
+            off.into_iter()
+                .map(|d| position(v) + d.normalize_or_zero() * 2.0 * pixel)
+                .find(|&p| open(p))
+                .or_else(|| outside_along_normal(drawn_in))
+        };
+        let top = rim.iter().map(|&v| position(v).y).fold(f64::NEG_INFINITY, f64::max);
         eyes.extend(
-            points
-                .filter_map(in_gap)
+            chosen
+                .iter()
+                .filter_map(eye)
                 .map(|p| (p, top.max(p.y)))
                 .filter(|&(_, horizon)| horizon > bottom),
         );
@@ -1163,6 +1188,36 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField) ->
         }
     }
     eyes
+}
+
+/// Per vertex of a boundary edge, the way off the surface into the opening beside it: for each
+/// of its boundary edges, away from the edge's triangle in that triangle's plane, summed.
+fn off_rim(mesh: &Mesh, boundary: &[BoundaryEdge]) -> HashMap<u32, DVec3> {
+    let edges: HashSet<(u32, u32)> = boundary.iter().map(|e| (e.a.min(e.b), e.a.max(e.b))).collect();
+    let mut on_rim = vec![false; mesh.positions.len()];
+    for &(a, b) in &edges {
+        (on_rim[a as usize], on_rim[b as usize]) = (true, true);
+    }
+    let position = |v: u32| mesh.positions[v as usize].as_dvec3();
+    let mut off: HashMap<u32, DVec3> = HashMap::new();
+    for tri in mesh
+        .triangles
+        .iter()
+        .filter(|t| t.iter().filter(|&&v| on_rim[v as usize]).count() >= 2)
+    {
+        for k in 0..3 {
+            let (a, b, c) = (tri[(k + 1) % 3], tri[(k + 2) % 3], tri[k]);
+            if !edges.contains(&(a.min(b), a.max(b))) {
+                continue;
+            }
+            let along = (position(b) - position(a)).normalize_or_zero();
+            let away = position(a) - position(c);
+            let away = (away - along * away.dot(along)).normalize_or_zero();
+            *off.entry(a).or_default() += away;
+            *off.entry(b).or_default() += away;
+        }
+    }
+    off
 }
 
 /// Per triangle with a boundary edge along a crack, which of its edges (edge k joins corners
@@ -1585,9 +1640,18 @@ mod tests {
 
     #[test]
     fn corners_tested_a_brick_at_a_time_are_those_every_view_sees_one_by_one() {
-        // A cube split by a crack, with cameras in the crack, seen through from above; corners
-        // inside it and around it.
-        let views = views_of(split_cube(0.02));
+        // A cube split by a slit, with cameras in the slit, which see into both halves; a
+        // closed box in one half, whose inside nothing sees; corners inside and around them.
+        let mut mesh = split_cube(0.02);
+        let base = mesh.positions.len() as u32;
+        mesh.positions.extend((0..8).map(|i| {
+            let pick = |bit: usize, lo: f32, hi: f32| if i & bit == 0 { lo } else { hi };
+            Vec3::new(pick(1, 0.1, 0.4), pick(2, 0.1, 0.4), pick(4, 0.1, 0.9))
+        }));
+        for q in BOX_FACES.map(|q| q.map(|i| base + i as u32)) {
+            mesh.triangles.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
+        }
+        let views = views_of(mesh);
         let grid = Grid::fit(Vec3::splat(0.02), Vec3::splat(1.02), 30);
         let dims = grid.dims.map(|d| d + 1);
         let mut rng = fastrand::Rng::with_seed(4);
@@ -1621,6 +1685,37 @@ mod tests {
             }
         }
         assert!(skipped[0] > 1_000 && skipped[1] > 1_000, "{skipped:?} boxes skipped");
+    }
+
+    /// A unit box open at the top, with a lid (a plate) in its rim, `gap` short of it all round.
+    fn lidded_box(gap: f32) -> (Mesh, Vec<BoundaryEdge>) {
+        let (mut mesh, _) = open_cube(Some(3));
+        let base = mesh.positions.len() as u32;
+        let (near, far) = (gap, 1.0 - gap);
+        mesh.positions
+            .extend([[near, near], [far, near], [far, far], [near, far]].map(|[x, z]| Vec3::new(x, 1.0, z)));
+        mesh.triangles
+            .extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
+        let topology = orient_closed_components(&mut mesh);
+        (mesh, topology.boundary)
+    }
+
+    #[test]
+    fn an_opening_whose_middle_a_lid_fills_gets_cameras_in_the_gap_beside_its_rim() {
+        // Both openings' middles, the rim's and the lid's, lie under the lid; so do their rim
+        // points drawn a fifth of the way in. Two rim points of each go into the gap instead:
+        // the rim's towards its centre, the lid's on from the lid's edge.
+        let (mesh, boundary) = lidded_box(0.03);
+        let field = WindingField::new(&mesh, &boundary);
+        let eyes = opening_eyes(&mesh, &boundary, &field, 0.01);
+        let in_gap = |p: DVec3| {
+            let to_wall = [p.x, 1.0 - p.x, p.z, 1.0 - p.z]
+                .into_iter()
+                .fold(f64::INFINITY, f64::min);
+            (p.y - 1.0).abs() < 1e-6 && to_wall > 0.0 && to_wall < 0.03
+        };
+        assert_eq!(eyes.iter().filter(|(p, _)| in_gap(*p)).count(), 4, "{eyes:?}");
+        assert_eq!(eyes.len(), 6, "{eyes:?}");
     }
 
     #[test]

@@ -1126,7 +1126,8 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pi
         }
     }
     openings.sort_by(|a, b| b.2.total_cmp(&a.2));
-    let off_rim = off_rim(mesh, boundary);
+    // Found only when a rim point needs it: most openings' points pass drawn in.
+    let beside_rim = std::cell::OnceCell::new();
     let (lo, hi) = mesh.bounds();
     let size = f64::from((hi - lo).length());
     let bottom = f64::from(lo.y) + 1e-3 * size;
@@ -1168,7 +1169,8 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pi
                 return Some(drawn_in);
             }
             // Two pixels off the rim: towards the centre, then away from the rim's triangles.
-            let off = [centre - position(v), off_rim.get(&v).copied().unwrap_or_default()];
+            let away = beside_rim.get_or_init(|| off_rim(mesh, boundary)).get(&v);
+            let off = [centre - position(v), away.copied().unwrap_or_default()];
             off.into_iter()
                 .map(|d| position(v) + d.normalize_or_zero() * 2.0 * pixel)
                 .find(|&p| open(p))

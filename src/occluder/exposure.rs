@@ -1091,40 +1091,8 @@ impl CrackSplit {
 /// highest point, or its own where it moved higher. Cameras whose height is at the very bottom
 /// of the mesh are left out: nothing lies lower for them to show.
 fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pixel: f64) -> Vec<(DVec3, f64)> {
-    let mut neighbours: HashMap<u32, Vec<&BoundaryEdge>> = HashMap::new();
-    for e in boundary {
-        neighbours.entry(e.a).or_default().push(e);
-        neighbours.entry(e.b).or_default().push(e);
-    }
-    let mut starts: Vec<u32> = neighbours.keys().copied().collect();
-    starts.sort_unstable();
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
-    let mut visited = HashSet::new();
-    let extent = |rim: &[u32]| {
-        let (lo, hi) = crate::mesh::point_bounds(rim.iter().map(|&v| position(v)));
-        (hi - lo).length()
-    };
-    // Each opening's rim vertices, vector area and extent.
-    let mut openings: Vec<(Vec<u32>, DVec3, f64)> = Vec::new();
-    for start in starts {
-        let (mut stack, mut rim, mut area) = (vec![start], Vec::new(), DVec3::ZERO);
-        while let Some(v) = stack.pop() {
-            if visited.insert(v) {
-                rim.push(v);
-                for e in &neighbours[&v] {
-                    stack.push(if e.a == v { e.b } else { e.a });
-                    // Each edge is met from both ends: counted from its first.
-                    if e.a == v {
-                        area += position(e.a).cross(position(e.b)) * f64::from(e.weight) * 0.5;
-                    }
-                }
-            }
-        }
-        if !rim.is_empty() {
-            let size = extent(&rim);
-            openings.push((rim, area, size));
-        }
-    }
+    let mut openings = openings(mesh, boundary);
     openings.sort_by(|a, b| b.2.total_cmp(&a.2));
     // Found only when a rim point needs it: most openings' points pass drawn in.
     let beside_rim = std::cell::OnceCell::new();
@@ -1190,6 +1158,45 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pi
         }
     }
     eyes
+}
+
+/// Each opening (a connected run of boundary edges) as its rim's vertices, its vector area and its
+/// extent.
+fn openings(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(Vec<u32>, DVec3, f64)> {
+    let mut neighbours: HashMap<u32, Vec<&BoundaryEdge>> = HashMap::new();
+    for e in boundary {
+        neighbours.entry(e.a).or_default().push(e);
+        neighbours.entry(e.b).or_default().push(e);
+    }
+    let mut starts: Vec<u32> = neighbours.keys().copied().collect();
+    starts.sort_unstable();
+    let position = |v: u32| mesh.positions[v as usize].as_dvec3();
+    let mut visited = HashSet::new();
+    let extent = |rim: &[u32]| {
+        let (lo, hi) = crate::mesh::point_bounds(rim.iter().map(|&v| position(v)));
+        (hi - lo).length()
+    };
+    let mut openings: Vec<(Vec<u32>, DVec3, f64)> = Vec::new();
+    for start in starts {
+        let (mut stack, mut rim, mut area) = (vec![start], Vec::new(), DVec3::ZERO);
+        while let Some(v) = stack.pop() {
+            if visited.insert(v) {
+                rim.push(v);
+                for e in &neighbours[&v] {
+                    stack.push(if e.a == v { e.b } else { e.a });
+                    // Each edge is met from both ends: counted from its first.
+                    if e.a == v {
+                        area += position(e.a).cross(position(e.b)) * f64::from(e.weight) * 0.5;
+                    }
+                }
+            }
+        }
+        if !rim.is_empty() {
+            let size = extent(&rim);
+            openings.push((rim, area, size));
+        }
+    }
+    openings
 }
 
 /// Per vertex of a boundary edge, the way off the surface into the opening beside it: for each

@@ -878,10 +878,9 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Notes on what was left out, and on why the occluder may be empty or small: `exposed`
-    /// counts the voxels, boxes and quads that show through an opening.
-    /// What was left out, and why the occluder of `mesh` is poor where it is: no inner voxels, or
-    /// nothing at all, perhaps from a stray vertex.
+    /// Notes on what was left out, and on why the occluder of `mesh` may be empty or small (no
+    /// inner voxels, or nothing at all, perhaps from a stray vertex): `exposed` counts the
+    /// voxels, boxes and quads that show through an opening.
     fn note_outcome(
         &mut self,
         exposed: [usize; 3],

@@ -1094,7 +1094,7 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pi
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
     let mut openings = openings(mesh, boundary);
     openings.sort_by(|a, b| b.2.total_cmp(&a.2));
-    // Found only when a rim point needs it: most openings' points pass drawn in.
+    // Found only when a rim point needs it: most pass drawn in or towards the centre.
     let beside_rim = std::cell::OnceCell::new();
     let (lo, hi) = mesh.bounds();
     let size = f64::from((hi - lo).length());
@@ -1126,23 +1126,22 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pi
                 .flat_map(|k| [1.0, -1.0].map(|side| p + normal * (side * reach * k as f64 / 16.0)))
                 .find(|&q| field.winding(q) < 0.5)
         };
+        // The centre or a rim point drawn in, if in a gap; else, for a rim point, two pixels off
+        // the rim: towards the centre, then away from the rim's triangles; else moved out.
         let eye = |c: &Option<u32>| {
-            let Some(v) = *c else {
-                return Some(centre)
-                    .filter(|&p| open(p))
-                    .or_else(|| outside_along_normal(centre));
-            };
-            let drawn_in = position(v) + (centre - position(v)) * 0.2;
-            if open(drawn_in) {
-                return Some(drawn_in);
+            let first = c.map_or(centre, |v| position(v) + (centre - position(v)) * 0.2);
+            if open(first) {
+                return Some(first);
             }
-            // Two pixels off the rim: towards the centre, then away from the rim's triangles.
-            let away = beside_rim.get_or_init(|| off_rim(mesh, boundary)).get(&v);
-            let off = [centre - position(v), away.copied().unwrap_or_default()];
-            off.into_iter()
-                .map(|d| position(v) + d.normalize_or_zero() * 2.0 * pixel)
-                .find(|&p| open(p))
-                .or_else(|| outside_along_normal(drawn_in))
+            if let Some(v) = *c {
+                let beside = |d: DVec3| Some(position(v) + d.normalize_or_zero() * 2.0 * pixel).filter(|&p| open(p));
+                let away = || beside_rim.get_or_init(|| off_rim(mesh, boundary)).get(&v).copied();
+                let found = beside(centre - position(v)).or_else(|| beside(away().unwrap_or_default()));
+                if found.is_some() {
+                    return found;
+                }
+            }
+            outside_along_normal(first)
         };
         let top = rim.iter().map(|&v| position(v).y).fold(f64::NEG_INFINITY, f64::max);
         eyes.extend(

@@ -153,16 +153,21 @@ fn piece_of(mesh: &Mesh, region: &[usize], double_sided: bool, tolerance: f64) -
     }
 }
 
+/// The heights of the region's corners along `n`.
+fn heights_along(mesh: &Mesh, region: &[usize], n: DVec3) -> impl Iterator<Item = f64> {
+    region
+        .iter()
+        .flat_map(|&t| mesh.corners(t))
+        .map(move |p| n.dot(p.as_dvec3()))
+}
+
 /// Whether every corner of the region lies within `within` of its first triangle's plane.
 fn lies_flat(mesh: &Mesh, region: &[usize], within: f64) -> bool {
     let Some(n) = normal(mesh, region[0]) else {
         return false;
     };
     let offset = n.dot(mesh.corners(region[0])[0].as_dvec3());
-    region
-        .iter()
-        .flat_map(|&t| mesh.corners(t))
-        .all(|p| (n.dot(p.as_dvec3()) - offset).abs() <= within)
+    heights_along(mesh, region, n).all(|h| (h - offset).abs() <= within)
 }
 
 /// A closed part's new triangles, moved in along the normal of the region's first triangle
@@ -174,11 +179,7 @@ fn under_region(mesh: &Mesh, region: &[usize], triangles: Vec<[[f64; 3]; 3]>) ->
     let Some(n) = normal(mesh, region[0]) else {
         return triangles;
     };
-    let lowest = region
-        .iter()
-        .flat_map(|&t| mesh.corners(t))
-        .map(|p| n.dot(p.as_dvec3()))
-        .fold(f64::INFINITY, f64::min);
+    let lowest = heights_along(mesh, region, n).fold(f64::INFINITY, f64::min);
     let highest = triangles
         .iter()
         .flatten()

@@ -15,6 +15,11 @@
 //! opening only past a point of the opening at least as high, so these cameras count only what
 //! lies no higher than the opening's highest point.
 //!
+//! An opening of a part that lies inside another (overlapping shells, a shell inside a shell)
+//! shows only along lines that pass an opening of the enclosing part first: too few for the
+//! views above or the cameras in that opening to sample. Where those see such an opening, it gets
+//! cameras of its own; where none does, it lies in a closed part, and nothing reaches it.
+//!
 //! A crack between parts that nearly touch is narrower than a pixel, so pixel centres rarely
 //! fall in it, yet what lies behind it shows. Along a boundary edge with another part of the
 //! surface within a pixel (but not touching), the views draw a pixel only where its whole square
@@ -61,6 +66,9 @@ const OPEN_WINDING: f64 = 0.3;
 /// Cameras in all openings, the largest openings first: each renders five or six faces of a
 /// cube map.
 const MAX_EYES: usize = 24;
+/// Cameras in openings that lie inside another part, besides `MAX_EYES`
+/// ([`OpenViews::add_enclosed_eyes`]).
+const MAX_ENCLOSED_EYES: usize = 12;
 /// Grid corners along each side of a brick tested together, view by view.
 const CORNER_BRICK: usize = 8;
 /// Views whose depths the bricks go through together: a few, whose depths stay in cache.
@@ -70,7 +78,7 @@ const MAX_PART_CELLS: usize = 64;
 
 pub struct OpenViews {
     /// The orthographic views from directions above the horizon and on it, then the cameras in
-    /// the openings.
+    /// the openings, then those in the openings of parts inside another.
     views: Vec<View>,
     /// How many of `views` are orthographic.
     sky_views: usize,
@@ -293,6 +301,36 @@ impl WindowTiles {
     }
 }
 
+/// A camera in an opening: its point, and the height up to which it counts what it sees.
+type Camera = (DVec3, f64);
+
+/// Adds the cube map of each camera to `views`; returns each face's horizon. The face looking up
+/// sees only what is higher than the camera: it counts only where the opening reaches higher
+/// still.
+fn add_cube_maps(views: &mut Vec<View>, eyes: &[Camera], radius: f64) -> Vec<f64> {
+    let mut horizons = Vec::new();
+    for &(eye, horizon) in eyes {
+        for view in View::cube_map(eye, PIXELS, 2e-4 * radius)
+            .into_iter()
+            .filter(|v| v.dir.y > -0.5 || horizon > eye.y)
+        {
+            views.push(view);
+            horizons.push(horizon);
+        }
+    }
+    horizons
+}
+
+/// Draws the cameras' views of `parts` (of the mesh in `sphere`) into `out`, each pixel the
+/// farthest depth of its neighbourhood.
+fn draw_eyes(eyes: &[View], horizons: &[f64], (parts, sphere): (&[Meshlet], (DVec3, f64)), out: &mut [f32]) {
+    let eyes = out.par_chunks_mut(PIXELS * PIXELS).zip(eyes).zip(horizons);
+    eyes.for_each_init(Vec::new, |image, ((out, view), &horizon)| {
+        draw_depth_nearest_first(view, &may_hide_counted(parts, sphere, view, horizon), image);
+        farthest_nearby(image, PIXELS, out);
+    });
+}
+
 /// The grid corners (z fastest) that one of the voxels around them, up to 8, is inner.
 fn needed_corners(grid: &Grid, inner: &[bool]) -> Vec<bool> {
     let [nx, ny, nz] = grid.dims;
@@ -337,22 +375,11 @@ impl OpenViews {
         let sky_views = views.len();
         let pixel = 2.0 * radius / PIXELS as f64;
         // Each mostly serial: side by side.
-        let (eyes, cracked) = rayon::join(
+        let ((eyes, enclosed), cracked) = rayon::join(
             || opening_eyes(mesh, boundary, winding_field(), pixel),
             || crack_edges(mesh, boundary, pixel, TOUCHING * radius),
         );
-        let mut horizons = Vec::new();
-        for (eye, horizon) in eyes {
-            // The face looking up sees only what is higher than the camera: it counts only
-            // where the opening reaches higher still.
-            for view in View::cube_map(eye, PIXELS, 2e-4 * radius)
-                .into_iter()
-                .filter(|v| v.dir.y > -0.5 || horizon > eye.y)
-            {
-                views.push(view);
-                horizons.push(horizon);
-            }
-        }
+        let horizons = add_cube_maps(&mut views, &eyes, radius);
         let split = CrackSplit::new(mesh, &cracked);
         // Each view's farthest depths over its neighbourhoods, one image after another, as the
         // GPU takes them. On the CPU each view is drawn, eroded and filtered in turn through one
@@ -366,12 +393,13 @@ impl OpenViews {
         // What the CPU draws in part, as meshlets: the cameras in the openings all the mesh's
         // triangles (the drawn ones' first, then those along a crack), the sky views in windows
         // the drawn ones'.
+        let cameras = !eyes.is_empty() || !enclosed.is_empty();
         let mut parts = Vec::new();
-        if !eyes.is_empty() || (banded.is_some() && gpu.is_none()) {
+        if cameras || (banded.is_some() && gpu.is_none()) {
             parts = meshlets(drawn);
         }
         let drawn_parts = parts.len();
-        if !eyes.is_empty() && split.uncracked.is_some() {
+        if cameras && split.uncracked.is_some() {
             parts.extend(meshlets(&split.soup));
         }
         // The GPU rasterizer draws orthographic views only; the CPU draws the cameras in the
@@ -381,30 +409,52 @@ impl OpenViews {
                 let windows = banded.as_ref().map(|(_, windows)| windows.as_slice());
                 draw_sky(sky, (drawn, &split), (windows, &parts[..drawn_parts]), gpu, sky_depths)
             },
-            || {
-                let eyes = eye_depths.par_chunks_mut(PIXELS * PIXELS).zip(eyes).zip(&horizons);
-                eyes.for_each_init(Vec::new, |image, ((out, view), &horizon)| {
-                    draw_depth_nearest_first(view, &may_hide_counted(&parts, (center, radius), view, horizon), image);
-                    farthest_nearby(image, PIXELS, out);
-                });
-            },
+            || draw_eyes(eyes, &horizons, (&parts, (center, radius)), eye_depths),
         );
         sky_drawn?;
-        let mut tiles = vec![0f32; views.len() * WindowTiles::ACROSS.pow(2)];
-        tiles
-            .par_chunks_mut(WindowTiles::ACROSS.pow(2))
-            .zip(depths.par_chunks(PIXELS * PIXELS))
-            .for_each(|(out, depth)| farthest_per_tile(depth, PIXELS, out));
-        Ok(OpenViews {
+        let mut open_views = OpenViews {
             views,
             sky_views,
             horizons,
             depths,
-            tiles,
+            tiles: Vec::new(),
             pixel,
             cracks: cracked.values().flatten().filter(|&&e| e).count(),
             band: banded.map(|(band, _)| band),
-        })
+        };
+        open_views.add_tiles(0);
+        open_views.add_enclosed_eyes(&enclosed, (&parts, (center, radius)));
+        Ok(open_views)
+    }
+
+    /// Cameras in the openings of parts that lie inside another part, at those of `enclosed`
+    /// that the views so far see: lines from outside reach them through an opening of the
+    /// enclosing part, then go on through theirs, in directions no other camera sees along.
+    /// Those no view sees lie in a closed part, where nothing from outside reaches.
+    fn add_enclosed_eyes(&mut self, enclosed: &[Camera], (parts, sphere): (&[Meshlet], (DVec3, f64))) {
+        let seen: Vec<Camera> = enclosed
+            .iter()
+            .filter(|(p, _)| (0..self.views.len()).any(|v| self.sees(v, *p)))
+            .take(MAX_ENCLOSED_EYES)
+            .copied()
+            .collect();
+        let first = self.views.len();
+        self.horizons.extend(add_cube_maps(&mut self.views, &seen, sphere.1));
+        self.depths.resize(self.views.len() * PIXELS * PIXELS, 0.0);
+        let horizons = &self.horizons[first - self.sky_views..];
+        let out = &mut self.depths[first * PIXELS * PIXELS..];
+        draw_eyes(&self.views[first..], horizons, (parts, sphere), out);
+        self.add_tiles(first);
+    }
+
+    /// The tiles of the views from `first` on ([`farthest_per_tile`]).
+    fn add_tiles(&mut self, first: usize) {
+        let tiles = WindowTiles::ACROSS.pow(2);
+        self.tiles.resize(self.views.len() * tiles, 0.0);
+        self.tiles[first * tiles..]
+            .par_chunks_mut(tiles)
+            .zip(self.depths[first * PIXELS * PIXELS..].par_chunks(PIXELS * PIXELS))
+            .for_each(|(out, depth)| farthest_per_tile(depth, PIXELS, out));
     }
 
     /// How many boundary edges run along a crack, where another part of the surface lies nearer
@@ -949,7 +999,7 @@ impl CornerBricks {
 /// Depth image memory a finished cook left for the next in this process: pages faulted in and
 /// zeroed by the kernel cost a worker that cooks mesh after mesh more CPU time than some meshes'
 /// whole views take to draw. The largest returned: at most 160 sky views and six for each of
-/// `MAX_EYES` cameras, 80 MB.
+/// `MAX_EYES + MAX_ENCLOSED_EYES` cameras, 99 MB.
 static SPARE_DEPTHS: Mutex<Vec<f32>> = Mutex::new(Vec::new());
 
 /// Memory for `len` depths, of whatever values: each is written before it is read. Fresh memory
@@ -958,7 +1008,7 @@ static SPARE_DEPTHS: Mutex<Vec<f32>> = Mutex::new(Vec::new());
 fn depth_memory(len: usize) -> Vec<f32> {
     let mut depths = std::mem::take(&mut *SPARE_DEPTHS.lock().unwrap_or_else(PoisonError::into_inner));
     if depths.capacity() < len {
-        let most = (DIRECTIONS / 2 + HORIZON_DIRECTIONS + 6 * MAX_EYES) * PIXELS * PIXELS;
+        let most = (DIRECTIONS / 2 + HORIZON_DIRECTIONS + 6 * (MAX_EYES + MAX_ENCLOSED_EYES)) * PIXELS * PIXELS;
         depths = vec![0.0; len.max(most)];
     }
     depths.truncate(len);
@@ -1090,7 +1140,16 @@ impl CrackSplit {
 /// in only through a real gap. Each camera comes with the height it counts up to: its opening's
 /// highest point, or its own where it moved higher. Cameras whose height is at the very bottom
 /// of the mesh are left out: nothing lies lower for them to show.
-fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pixel: f64) -> Vec<(DVec3, f64)> {
+///
+/// Besides, for each of those points, the first of it and the two beside the rim where the
+/// winding number is near k + ½ for some k ≥ 1: in a gap of a part that lies inside another, a
+/// camera of its own if a view sees it ([`OpenViews::add_enclosed_eyes`]).
+fn opening_eyes(
+    mesh: &Mesh,
+    boundary: &[BoundaryEdge],
+    field: &WindingField,
+    pixel: f64,
+) -> (Vec<Camera>, Vec<Camera>) {
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
     let mut openings = openings(mesh, boundary);
     openings.sort_by(|a, b| b.2.total_cmp(&a.2));
@@ -1099,8 +1158,7 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pi
     let (lo, hi) = mesh.bounds();
     let size = f64::from((hi - lo).length());
     let bottom = f64::from(lo.y) + 1e-3 * size;
-    let open = |p: DVec3| (field.winding(p) - 0.5).abs() < OPEN_WINDING;
-    let mut eyes = Vec::new();
+    let (mut eyes, mut enclosed): (Vec<Camera>, _) = (Vec::new(), Vec::new());
     for (rim, area, opening_size) in &openings {
         let centre = rim.iter().map(|&v| position(v)).sum::<DVec3>() / rim.len() as f64;
         let mut chosen: Vec<Option<u32>> = vec![None];
@@ -1126,37 +1184,51 @@ fn opening_eyes(mesh: &Mesh, boundary: &[BoundaryEdge], field: &WindingField, pi
                 .flat_map(|k| [1.0, -1.0].map(|side| p + normal * (side * reach * k as f64 / 16.0)))
                 .find(|&q| field.winding(q) < 0.5)
         };
-        // The centre or a rim point drawn in, if in a gap; else, for a rim point, two pixels off
-        // the rim: towards the centre, then away from the rim's triangles; else moved out.
-        let eye = |c: &Option<u32>| {
+        let top = rim.iter().map(|&v| position(v).y).fold(f64::NEG_INFINITY, f64::max);
+        for c in &chosen {
+            // The centre or a rim point drawn in, if in a gap; else, for a rim point, two pixels
+            // off the rim: towards the centre, then away from the rim's triangles; else moved out.
+            // The first of them in a gap of a part inside another is kept as well.
             let first = c.map_or(centre, |v| position(v) + (centre - position(v)) * 0.2);
-            if open(first) {
-                return Some(first);
-            }
-            if let Some(v) = *c {
-                let beside = |d: DVec3| Some(position(v) + d.normalize_or_zero() * 2.0 * pixel).filter(|&p| open(p));
-                let away = || beside_rim.get_or_init(|| off_rim(mesh, boundary)).get(&v).copied();
-                let found = beside(centre - position(v)).or_else(|| beside(away().unwrap_or_default()));
-                if found.is_some() {
-                    return found;
+            let beside = |v: u32, d: DVec3| position(v) + d.normalize_or_zero() * 2.0 * pixel;
+            let away = |v: u32| beside_rim.get_or_init(|| off_rim(mesh, boundary)).get(&v).copied();
+            let besides = c.iter().flat_map(|&v| {
+                let towards = std::iter::once_with(move || beside(v, centre - position(v)));
+                towards.chain(std::iter::once_with(move || beside(v, away(v).unwrap_or_default())))
+            });
+            let (mut eye, mut inside_another) = (None, None);
+            for p in std::iter::once(first).chain(besides) {
+                match gap_depth(field.winding(p)) {
+                    Some(0) => {
+                        eye = Some(p);
+                        break;
+                    }
+                    Some(_) => inside_another = inside_another.or(Some(p)),
+                    None => {}
                 }
             }
-            outside_along_normal(first)
-        };
-        let top = rim.iter().map(|&v| position(v).y).fold(f64::NEG_INFINITY, f64::max);
-        eyes.extend(
-            chosen
-                .iter()
-                .filter_map(eye)
-                .map(|p| (p, top.max(p.y)))
-                .filter(|&(_, horizon)| horizon > bottom),
-        );
+            for (p, list) in [
+                (eye.or_else(|| outside_along_normal(first)), &mut eyes),
+                (inside_another, &mut enclosed),
+            ] {
+                if let Some(p) = p.filter(|p| top.max(p.y) > bottom) {
+                    list.push((p, top.max(p.y)));
+                }
+            }
+        }
         if eyes.len() >= MAX_EYES {
             eyes.truncate(MAX_EYES);
             break;
         }
     }
-    eyes
+    (eyes, enclosed)
+}
+
+/// For a winding number near k + ½ (within [`OPEN_WINDING`]), k: the point lies in a gap of one
+/// part, inside k others (0: open to the outside).
+fn gap_depth(winding: f64) -> Option<u32> {
+    let k = (winding - 0.5).round();
+    ((winding - 0.5 - k).abs() < OPEN_WINDING && k >= 0.0).then_some(k as u32)
 }
 
 /// Each opening (a connected run of boundary edges) as its rim's vertices, its vector area and its
@@ -1715,7 +1787,7 @@ mod tests {
         // the rim's towards its centre, the lid's on from the lid's edge.
         let (mesh, boundary) = lidded_box(0.03);
         let field = WindingField::new(&mesh, &boundary);
-        let eyes = opening_eyes(&mesh, &boundary, &field, 0.01);
+        let (eyes, _) = opening_eyes(&mesh, &boundary, &field, 0.01);
         let in_gap = |p: DVec3| {
             let to_wall = [p.x, 1.0 - p.x, p.z, 1.0 - p.z]
                 .into_iter()
@@ -1724,6 +1796,44 @@ mod tests {
         };
         assert_eq!(eyes.iter().filter(|(p, _)| in_gap(*p)).count(), 4, "{eyes:?}");
         assert_eq!(eyes.len(), 6, "{eyes:?}");
+    }
+
+    /// A shaft 2 high over the unit square, open at the top if `shaft_open`, with a box open at
+    /// the top standing in it: the box's opening lies inside the shaft.
+    fn box_in_shaft(shaft_open: bool) -> (Mesh, Vec<BoundaryEdge>) {
+        let mut mesh = Mesh::default();
+        let shaft = (Vec3::ZERO, Vec3::new(1.0, 2.0, 1.0), shaft_open);
+        for (lo, hi, open) in [shaft, (Vec3::new(0.3, 0.2, 0.3), Vec3::new(0.7, 0.6, 0.7), true)] {
+            let (part, _) = open_cube(open.then_some(3));
+            let base = mesh.positions.len() as u32;
+            mesh.positions
+                .extend(part.positions.iter().map(|&p| lo + p * (hi - lo)));
+            mesh.triangles
+                .extend(part.triangles.iter().map(|t| t.map(|i| i + base)));
+        }
+        let topology = orient_closed_components(&mut mesh);
+        (mesh, topology.boundary)
+    }
+
+    #[test]
+    fn an_opening_inside_another_part_gets_cameras_where_a_view_sees_it() {
+        let faces = |eyes: &[Camera]| add_cube_maps(&mut Vec::new(), eyes, 1.0).len();
+        for shaft_open in [true, false] {
+            let (mesh, boundary) = box_in_shaft(shaft_open);
+            let field = WindingField::new(&mesh, &boundary);
+            let (eyes, enclosed) = opening_eyes(&mesh, &boundary, &field, 0.01);
+            // The box's centre and two rim points drawn in, where the winding number is near 1.5.
+            assert_eq!(enclosed.len(), 3, "{enclosed:?}");
+            assert!(enclosed.iter().all(|(p, _)| (p.y - 0.6).abs() < 1e-6), "{enclosed:?}");
+            assert_eq!(eyes.len(), if shaft_open { 3 } else { 0 }, "{eyes:?}");
+            // Seen down the open shaft, they get cameras; in the closed one, nothing sees them.
+            let seen = if shaft_open { faces(&enclosed) } else { 0 };
+            assert_eq!(
+                views_of(mesh).horizons.len(),
+                faces(&eyes) + seen,
+                "shaft open: {shaft_open}"
+            );
+        }
     }
 
     #[test]

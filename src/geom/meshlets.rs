@@ -69,6 +69,39 @@ pub fn meshlets(mesh: &Mesh) -> Vec<Meshlet> {
         .collect()
 }
 
+/// Whether the line from `p` along the unit vector `dir`, up to `reach`, crosses a triangle of
+/// the meshlets: edges and corners count, with a billionth to spare, so that a line along a
+/// seam between two triangles is not taken for clear.
+pub fn line_blocked(meshlets: &[Meshlet], p: DVec3, dir: DVec3, reach: f64) -> bool {
+    let inverse = dir.recip();
+    meshlets.iter().any(|m| {
+        // The slabs of its bounds, grown a little so that no line lies on one: the line meets
+        // them, if at all, between `near` and `far`.
+        let grow = DVec3::splat(1e-9 * (1.0 + m.lo.abs().max(m.hi.abs()).max_element()));
+        let (a, b) = ((m.lo - grow - p) * inverse, (m.hi + grow - p) * inverse);
+        let (near, far) = (a.min(b).max_element(), a.max(b).min_element());
+        let misses = near > far || far < 0.0 || near > reach;
+        !misses && (0..m.mesh.triangles.len()).any(|t| crosses(m.mesh.corners(t).map(|c| c.as_dvec3()), p, dir, reach))
+    })
+}
+
+/// Whether the line from `p` along `dir`, beyond a billionth and short of `reach`, crosses
+/// triangle `[a, b, c]` (Möller and Trumbore's test).
+fn crosses([a, b, c]: [DVec3; 3], p: DVec3, dir: DVec3, reach: f64) -> bool {
+    let (e1, e2) = (b - a, c - a);
+    let h = dir.cross(e2);
+    let det = e1.dot(h);
+    if det.abs() < 1e-12 {
+        return false;
+    }
+    let s = p - a;
+    let u = s.dot(h) / det;
+    let q = s.cross(e1);
+    let v = dir.dot(q) / det;
+    let t = e2.dot(q) / det;
+    (-1e-9..=1.0 + 1e-9).contains(&u) && v >= -1e-9 && u + v <= 1.0 + 1e-9 && t > 1e-9 && t < reach
+}
+
 /// The low 10 bits of `v`, two zero bits after each: one axis of a Morton code.
 fn spread_bits(v: u32) -> u32 {
     let mut v = v & 0x3ff;
@@ -81,6 +114,27 @@ fn spread_bits(v: u32) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_line_is_blocked_by_a_triangle_it_crosses_within_its_reach() {
+        let positions = (0..8).map(|i| Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, (i >> 2) as f32));
+        let triangles = crate::occluder::BOX_FACES
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]].map(|t| t.map(|i| i as u32)));
+        let cube = meshlets(&Mesh {
+            positions: positions.collect(),
+            triangles: triangles.collect(),
+        });
+        let centre = DVec3::splat(0.5);
+        for dir in [DVec3::X, DVec3::NEG_Y, DVec3::new(1.0, 1.0, 1.0).normalize()] {
+            assert!(line_blocked(&cube, centre, dir, f64::INFINITY), "{dir}");
+            assert!(!line_blocked(&cube, centre, dir, 0.4), "{dir} short of the wall");
+            assert!(
+                !line_blocked(&cube, centre + 2.0 * dir, dir, f64::INFINITY),
+                "{dir} outside"
+            );
+        }
+    }
 
     #[test]
     fn bits_spread_apart_by_two_zeros() {

@@ -17,8 +17,9 @@
 //!
 //! An opening of a part that lies inside another (overlapping shells, a shell inside a shell)
 //! shows only along lines that pass an opening of the enclosing part first: too few for the
-//! views above or the cameras in that opening to sample. Where those see such an opening, it gets
-//! cameras of its own; where none does, it lies in a closed part, and nothing reaches it.
+//! views above or the cameras in that opening to sample. Where those see such an opening along
+//! a clear line, it gets cameras of its own; where none does, it lies in a closed part, and
+//! nothing reaches it.
 //!
 //! A crack between parts that nearly touch is narrower than a pixel, so pixel centres rarely
 //! fall in it, yet what lies behind it shows. Along a boundary edge with another part of the
@@ -29,9 +30,9 @@ pub mod band;
 pub mod gpu;
 
 use super::{Panel, rectangle};
-use crate::geom::camera::{View, fibonacci_sphere};
+use crate::geom::camera::{Lens, View, fibonacci_sphere};
 use crate::geom::grid_counts::GridCounts;
-use crate::geom::meshlets::{Meshlet, meshlets};
+use crate::geom::meshlets::{Meshlet, line_blocked, meshlets};
 use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
 use crate::geom::{clamped_index, with_avx2};
@@ -428,13 +429,14 @@ impl OpenViews {
     }
 
     /// Cameras in the openings of parts that lie inside another part, at those of `enclosed`
-    /// that the views so far see: lines from outside reach them through an opening of the
-    /// enclosing part, then go on through theirs, in directions no other camera sees along.
-    /// Those no view sees lie in a closed part, where nothing from outside reaches.
+    /// that the views so far see ([`OpenViews::seen_clearly`]): lines from outside reach them
+    /// through an opening of the enclosing part, then go on through theirs, in directions no
+    /// other camera sees along. Those no view sees lie in a closed part, where nothing from
+    /// outside reaches.
     fn add_enclosed_eyes(&mut self, enclosed: &[Camera], (parts, sphere): (&[Meshlet], (DVec3, f64))) {
         let seen: Vec<Camera> = enclosed
             .iter()
-            .filter(|(p, _)| (0..self.views.len()).any(|v| self.sees(v, *p)))
+            .filter(|(p, _)| self.seen_clearly(parts, *p))
             .take(MAX_ENCLOSED_EYES)
             .copied()
             .collect();
@@ -445,6 +447,22 @@ impl OpenViews {
         let out = &mut self.depths[first * PIXELS * PIXELS..];
         draw_eyes(&self.views[first..], horizons, (parts, sphere), out);
         self.add_tiles(first);
+    }
+
+    /// Whether a view whose depth image sees `p` sees it along a line that meets no triangle of
+    /// `parts` (the mesh's). The images take each pixel's farthest depth over its neighbourhood,
+    /// so they see a point that lies just behind the surface near a silhouette: where a part's
+    /// opening meets another part's surface (a handle's end in a body), a camera there would
+    /// look into a closed part.
+    fn seen_clearly(&self, parts: &[Meshlet], p: DVec3) -> bool {
+        (0..self.views.len()).filter(|&v| self.sees(v, p)).any(|v| {
+            let view = &self.views[v];
+            let reach = match view.lens {
+                Lens::Orthographic { .. } => f64::INFINITY,
+                Lens::Perspective { eye } => eye.distance(p),
+            };
+            !line_blocked(parts, p, view.towards_camera(p), reach)
+        })
     }
 
     /// The tiles of the views from `first` on ([`farthest_per_tile`]).
@@ -1403,25 +1421,6 @@ mod tests {
         (mesh, boundary, grid, inner)
     }
 
-    /// Whether the ray from `p` along `dir` crosses a triangle of `mesh`.
-    fn ray_crosses(mesh: &Mesh, p: DVec3, dir: DVec3) -> bool {
-        (0..mesh.triangles.len()).any(|t| {
-            let [a, b, c] = mesh.corners(t).map(|v| v.as_dvec3());
-            let (e1, e2) = (b - a, c - a);
-            let h = dir.cross(e2);
-            let det = e1.dot(h);
-            if det.abs() < 1e-12 {
-                return false;
-            }
-            let s = p - a;
-            let u = s.dot(h) / det;
-            let q = s.cross(e1);
-            let v = dir.dot(q) / det;
-            let t = e2.dot(q) / det;
-            (-1e-9..=1.0 + 1e-9).contains(&u) && v >= -1e-9 && u + v <= 1.0 + 1e-9 && t > 1e-9
-        })
-    }
-
     #[test]
     fn where_the_sky_views_are_drawn_in_bands_every_corner_they_hide_is_behind_the_surface() {
         // Open on the side at x = 1: the top lies over every inner corner (W″ = 1), and from
@@ -1442,7 +1441,7 @@ mod tests {
                 } else {
                     hidden += 1;
                     assert!(
-                        ray_crosses(&mesh, p, views.views[v].dir),
+                        line_blocked(&meshlets(&mesh), p, views.views[v].dir, f64::INFINITY),
                         "view {v} hides {p} in the open"
                     );
                 }

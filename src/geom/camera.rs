@@ -167,9 +167,15 @@ impl View {
 
     /// The unit vector from `p` towards the camera: `dir` for orthographic views.
     pub fn towards_camera(&self, p: DVec3) -> DVec3 {
+        self.line_to_camera(p).0
+    }
+
+    /// The line from `p` to the camera: [`View::towards_camera`], and how far the camera is
+    /// (without end for orthographic views).
+    pub fn line_to_camera(&self, p: DVec3) -> (DVec3, f64) {
         match self.lens {
-            Lens::Orthographic { .. } => self.dir,
-            Lens::Perspective { eye } => (eye - p).normalize_or(self.dir),
+            Lens::Orthographic { .. } => (self.dir, f64::INFINITY),
+            Lens::Perspective { eye } => ((eye - p).normalize_or(self.dir), eye.distance(p)),
         }
     }
 

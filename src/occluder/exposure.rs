@@ -30,7 +30,7 @@ pub mod band;
 pub mod gpu;
 
 use super::{Panel, rectangle};
-use crate::geom::camera::{Lens, View, fibonacci_sphere};
+use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::grid_counts::GridCounts;
 use crate::geom::meshlets::{Meshlet, line_blocked, meshlets};
 use crate::geom::proximity::SurfaceIndex;
@@ -456,12 +456,8 @@ impl OpenViews {
     /// look into a closed part.
     fn seen_clearly(&self, parts: &[Meshlet], p: DVec3) -> bool {
         (0..self.views.len()).filter(|&v| self.sees(v, p)).any(|v| {
-            let view = &self.views[v];
-            let reach = match view.lens {
-                Lens::Orthographic { .. } => f64::INFINITY,
-                Lens::Perspective { eye } => eye.distance(p),
-            };
-            !line_blocked(parts, p, view.towards_camera(p), reach)
+            let (towards, reach) = self.views[v].line_to_camera(p);
+            !line_blocked(parts, p, towards, reach)
         })
     }
 

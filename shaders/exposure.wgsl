@@ -22,7 +22,7 @@ struct Params {
 // Five rows a view, corners in voxel units: X, Y, W and depth + tolerance = row · (corner, 1),
 // the pixel being (X / W, Y / W); then (the height it counts up to, in voxels; 1 for a camera
 // in an opening, else 0; its near distance; unused).
-@group(0) @binding(2) var<uniform> views: array<vec4<f32>, 1600>;
+@group(0) @binding(2) var<uniform> views: array<vec4<f32>, 1880>;
 // The views' depth images, each pixel the farthest of its neighbourhood, rows from the bottom.
 @group(0) @binding(3) var<storage, read> depths: array<f32>;
 // One bit a corner: seen.

@@ -64,12 +64,21 @@ pub(crate) const TILE: usize = 8;
 const EYES_PER_OPENING: usize = 3;
 /// How near a half the winding number at a point of an opening is when nothing fills it.
 const OPEN_WINDING: f64 = 0.3;
+/// How near a whole number it is at the mouth of an opening inside another part
+/// ([`mouth_points`]).
+const MOUTH_WINDING: f64 = 0.2;
+/// Such a mouth gets a camera only if at most one in so many sky views sees it: through a wider
+/// one, they sample the lines already.
+const NARROW_WINDOW: usize = 5;
 /// Cameras in all openings, the largest openings first: each renders five or six faces of a
 /// cube map.
 const MAX_EYES: usize = 24;
 /// Cameras in openings that lie inside another part, besides `MAX_EYES`
 /// ([`OpenViews::add_enclosed_eyes`]).
 const MAX_ENCLOSED_EYES: usize = 12;
+/// Most views in all: the sky's upper half and horizon, and the six faces of each camera's
+/// cube map.
+pub(crate) const MAX_VIEWS: usize = DIRECTIONS / 2 + HORIZON_DIRECTIONS + 6 * (MAX_EYES + MAX_ENCLOSED_EYES);
 /// Grid corners along each side of a brick tested together, view by view.
 const CORNER_BRICK: usize = 8;
 /// Views whose depths the bricks go through together: a few, whose depths stay in cache.
@@ -376,7 +385,7 @@ impl OpenViews {
         let sky_views = views.len();
         let pixel = 2.0 * radius / PIXELS as f64;
         // Each mostly serial: side by side.
-        let ((eyes, enclosed), cracked) = rayon::join(
+        let ((eyes, enclosed, mouths), cracked) = rayon::join(
             || opening_eyes(mesh, boundary, winding_field(), pixel),
             || crack_edges(mesh, boundary, pixel, TOUCHING * radius),
         );
@@ -394,7 +403,7 @@ impl OpenViews {
         // What the CPU draws in part, as meshlets: the cameras in the openings all the mesh's
         // triangles (the drawn ones' first, then those along a crack), the sky views in windows
         // the drawn ones'.
-        let cameras = !eyes.is_empty() || !enclosed.is_empty();
+        let cameras = !eyes.is_empty() || !enclosed.is_empty() || !mouths.is_empty();
         let mut parts = Vec::new();
         if cameras || (banded.is_some() && gpu.is_none()) {
             parts = meshlets(drawn);
@@ -424,7 +433,7 @@ impl OpenViews {
             band: banded.map(|(band, _)| band),
         };
         open_views.add_tiles(0);
-        open_views.add_enclosed_eyes(&enclosed, (&parts, (center, radius)));
+        open_views.add_enclosed_eyes((&enclosed, &mouths), (&parts, (center, radius)));
         Ok(open_views)
     }
 
@@ -432,11 +441,23 @@ impl OpenViews {
     /// that the views so far see ([`OpenViews::seen_clearly`]): lines from outside reach them
     /// through an opening of the enclosing part, then go on through theirs, in directions no
     /// other camera sees along. Those no view sees lie in a closed part, where nothing from
-    /// outside reaches.
-    fn add_enclosed_eyes(&mut self, enclosed: &[Camera], (parts, sphere): (&[Meshlet], (DVec3, f64))) {
+    /// outside reaches. Then, up to [`MAX_ENCLOSED_EYES`] in all, cameras at those of `mouths`
+    /// ([`mouth_points`]) that are seen so and narrow: few sky views see them.
+    fn add_enclosed_eyes(
+        &mut self,
+        (enclosed, mouths): (&[Camera], &[Camera]),
+        (parts, sphere): (&[Meshlet], (DVec3, f64)),
+    ) {
+        let narrow =
+            |p: DVec3| (0..self.sky_views).filter(|&v| self.sees(v, p)).count() <= self.sky_views / NARROW_WINDOW;
         let seen: Vec<Camera> = enclosed
             .iter()
             .filter(|(p, _)| self.seen_clearly(parts, *p))
+            .chain(
+                mouths
+                    .iter()
+                    .filter(|(p, _)| narrow(*p) && self.seen_clearly(parts, *p)),
+            )
             .take(MAX_ENCLOSED_EYES)
             .copied()
             .collect();
@@ -1022,7 +1043,7 @@ static SPARE_DEPTHS: Mutex<Vec<f32>> = Mutex::new(Vec::new());
 fn depth_memory(len: usize) -> Vec<f32> {
     let mut depths = std::mem::take(&mut *SPARE_DEPTHS.lock().unwrap_or_else(PoisonError::into_inner));
     if depths.capacity() < len {
-        let most = (DIRECTIONS / 2 + HORIZON_DIRECTIONS + 6 * (MAX_EYES + MAX_ENCLOSED_EYES)) * PIXELS * PIXELS;
+        let most = MAX_VIEWS * PIXELS * PIXELS;
         depths = vec![0.0; len.max(most)];
     }
     depths.truncate(len);
@@ -1157,13 +1178,14 @@ impl CrackSplit {
 ///
 /// Besides, for each of those points, the first of it and the two beside the rim where the
 /// winding number is near k + ½ for some k ≥ 1: in a gap of a part that lies inside another, a
-/// camera of its own if a view sees it ([`OpenViews::add_enclosed_eyes`]).
+/// camera of its own if a view sees it ([`OpenViews::add_enclosed_eyes`]). After them come the
+/// points at the mouths of openings inside other parts ([`mouth_points`]), for the same test.
 fn opening_eyes(
     mesh: &Mesh,
     boundary: &[BoundaryEdge],
     field: &WindingField,
     pixel: f64,
-) -> (Vec<Camera>, Vec<Camera>) {
+) -> (Vec<Camera>, Vec<Camera>, Vec<Camera>) {
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
     let mut openings = openings(mesh, boundary);
     openings.sort_by(|a, b| b.2.total_cmp(&a.2));
@@ -1173,6 +1195,7 @@ fn opening_eyes(
     let size = f64::from((hi - lo).length());
     let bottom = f64::from(lo.y) + 1e-3 * size;
     let (mut eyes, mut enclosed): (Vec<Camera>, _) = (Vec::new(), Vec::new());
+    let mut mouths = Vec::new();
     for (rim, area, opening_size) in &openings {
         let centre = rim.iter().map(|&v| position(v)).sum::<DVec3>() / rim.len() as f64;
         let mut chosen: Vec<Option<u32>> = vec![None];
@@ -1230,12 +1253,61 @@ fn opening_eyes(
                 }
             }
         }
+        let off = beside_rim.get_or_init(|| off_rim(mesh, boundary));
+        mouths.extend(
+            mouth_points(rim, (boundary, off), field, pixel, position)
+                .into_iter()
+                .filter(|p| top.max(p.y) > bottom)
+                .map(|p| (p, top.max(p.y))),
+        );
         if eyes.len() >= MAX_EYES {
             eyes.truncate(MAX_EYES);
             break;
         }
     }
-    (eyes, enclosed)
+    (eyes, enclosed, mouths)
+}
+
+/// Points two pixels (`pixel`) off an opening's rim (`rim`, its vertices) into the opening,
+/// every two pixels along it, where the winding number is near a whole number k >= 1: the
+/// opening's mouth where it lies inside k other parts, its own share there far from a half, as
+/// in a slot between a lid and its rim, which [`gap_depth`] misses; or a window where two
+/// parts' openings cross, a half from each. What lies inside those parts shows through there,
+/// in directions that neither the opening's own cameras nor the sky views may sample. One
+/// point per eight pixels of rim at most.
+fn mouth_points(
+    rim: &[u32],
+    (boundary, off): (&[BoundaryEdge], &HashMap<u32, DVec3>),
+    field: &WindingField,
+    pixel: f64,
+    position: impl Fn(u32) -> DVec3,
+) -> Vec<DVec3> {
+    let on_rim: HashSet<u32> = rim.iter().copied().collect();
+    let samples: Vec<DVec3> = boundary
+        .iter()
+        .filter(|e| on_rim.contains(&e.a))
+        .flat_map(|e| {
+            let (a, b) = (position(e.a), position(e.b));
+            let into = [e.a, e.b]
+                .iter()
+                .map(|v| off.get(v).copied().unwrap_or_default())
+                .sum::<DVec3>()
+                .normalize_or_zero();
+            let steps = (a.distance(b) / (2.0 * pixel)).ceil().max(1.0) as usize;
+            (0..steps).map(move |k| a.lerp(b, (k as f64 + 0.5) / steps as f64) + into * 2.0 * pixel)
+        })
+        .collect();
+    let mut points: Vec<DVec3> = Vec::new();
+    for (&p, (winding, bound)) in samples.iter().zip(field.bounded_windings(&samples)) {
+        let whole = winding.round();
+        if whole >= 1.0
+            && (winding - whole).abs() + bound < MOUTH_WINDING
+            && points.iter().all(|q| q.distance(p) > 8.0 * pixel)
+        {
+            points.push(p);
+        }
+    }
+    points
 }
 
 /// For a winding number near k + ½ (within [`OPEN_WINDING`]), k: the point lies in a gap of one
@@ -1782,7 +1854,7 @@ mod tests {
         // the rim's towards its centre, the lid's on from the lid's edge.
         let (mesh, boundary) = lidded_box(0.03);
         let field = WindingField::new(&mesh, &boundary);
-        let (eyes, _) = opening_eyes(&mesh, &boundary, &field, 0.01);
+        let (eyes, ..) = opening_eyes(&mesh, &boundary, &field, 0.01);
         let in_gap = |p: DVec3| {
             let to_wall = [p.x, 1.0 - p.x, p.z, 1.0 - p.z]
                 .into_iter()
@@ -1816,19 +1888,94 @@ mod tests {
         for shaft_open in [true, false] {
             let (mesh, boundary) = box_in_shaft(shaft_open);
             let field = WindingField::new(&mesh, &boundary);
-            let (eyes, enclosed) = opening_eyes(&mesh, &boundary, &field, 0.01);
+            let (eyes, enclosed, mouths) = opening_eyes(&mesh, &boundary, &field, 0.01);
             // The box's centre and two rim points drawn in, where the winding number is near 1.5.
             assert_eq!(enclosed.len(), 3, "{enclosed:?}");
             assert!(enclosed.iter().all(|(p, _)| (p.y - 0.6).abs() < 1e-6), "{enclosed:?}");
             assert_eq!(eyes.len(), if shaft_open { 3 } else { 0 }, "{eyes:?}");
-            // Seen down the open shaft, they get cameras; in the closed one, nothing sees them.
-            let seen = if shaft_open { faces(&enclosed) } else { 0 };
+            // Its mouth: two pixels over the rim of its walls, in the shaft.
+            let over_rim = |p: DVec3| {
+                let to_wall = [p.x - 0.3, 0.7 - p.x, p.z - 0.3, 0.7 - p.z]
+                    .into_iter()
+                    .fold(f64::INFINITY, f64::min);
+                (p.y - 0.62).abs() < 1e-6 && to_wall.abs() < 0.02
+            };
+            assert!(
+                mouths.len() >= if shaft_open { MAX_ENCLOSED_EYES - 3 } else { 1 },
+                "{mouths:?}"
+            );
+            assert!(mouths.iter().all(|(p, _)| over_rim(*p)), "{mouths:?}");
+            // Seen down the open shaft, they get cameras, the enclosed first; in the closed one,
+            // nothing sees them.
+            let seen = match shaft_open {
+                true => faces(&enclosed) + faces(&mouths[..MAX_ENCLOSED_EYES - 3]),
+                false => 0,
+            };
             assert_eq!(
                 views_of(mesh).horizons.len(),
                 faces(&eyes) + seen,
                 "shaft open: {shaft_open}"
             );
         }
+    }
+
+    /// The surface of the box over `lines` (each axis's from its first to its last), facing
+    /// out, each face cut into rectangles along those lines, but for the top face's rectangle
+    /// `slot` (its x and z cell indices): a box with a slot in its lid.
+    fn slotted_box(lines: [&[f32]; 3], slot: [usize; 2]) -> Mesh {
+        let mut mesh = Mesh::default();
+        let mut corner = HashMap::new();
+        for axis in 0..3 {
+            let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+            for side in [0, lines[axis].len() - 1] {
+                for i in 0..lines[a].len() - 1 {
+                    for j in 0..lines[b].len() - 1 {
+                        let cell = if a == 2 { [j, i] } else { [i, j] };
+                        if axis == 1 && side > 0 && cell == slot {
+                            continue;
+                        }
+                        let quad = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)].map(|(u, v)| {
+                            let mut p = Vec3::ZERO;
+                            (p[axis], p[a], p[b]) = (lines[axis][side], lines[a][u], lines[b][v]);
+                            *corner.entry(p.to_array().map(f32::to_bits)).or_insert_with(|| {
+                                mesh.positions.push(p);
+                                mesh.positions.len() as u32 - 1
+                            })
+                        });
+                        // Facing out: along +axis on the far side, as (a, b) turn.
+                        let [p, q, r, t] = if side > 0 {
+                            quad
+                        } else {
+                            [quad[0], quad[3], quad[2], quad[1]]
+                        };
+                        mesh.triangles.extend([[p, q, r], [p, r, t]]);
+                    }
+                }
+            }
+        }
+        mesh
+    }
+
+    #[test]
+    fn where_two_parts_openings_cross_their_rims_give_points_in_the_window() {
+        // Two overlapping boxes, the second a thousandth higher, each with a slot in its lid:
+        // one along x, one along z. Only over the square where the slots cross does a line
+        // reach inside both.
+        let mut mesh = slotted_box([&[0.0, 0.2, 0.8, 1.0], &[0.0, 1.0], &[0.0, 0.47, 0.53, 1.0]], [1, 1]);
+        mesh.append(&slotted_box(
+            [&[0.1, 0.47, 0.53, 1.1], &[-0.001, 1.001], &[-0.1, 0.2, 0.8, 0.9]],
+            [1, 1],
+        ));
+        let topology = orient_closed_components(&mut mesh);
+        assert_eq!(topology.boundary.len(), 8);
+        let field = WindingField::new(&mesh, &topology.boundary);
+        let (_, enclosed, mouths) = opening_eyes(&mesh, &topology.boundary, &field, 0.01);
+        let in_window = |p: DVec3| (0.47..0.53).contains(&p.x) && (0.47..0.53).contains(&p.z);
+        assert!(!mouths.is_empty());
+        assert!(mouths.iter().all(|(p, _)| in_window(*p)), "{mouths:?}");
+        // The lower slot's rim elsewhere lies inside the taller box: a gap in a part inside
+        // another, not a window.
+        assert!(enclosed.iter().all(|(p, _)| !in_window(*p)), "{enclosed:?}");
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! Host code for shaders/exposure.wgsl: which grid corners the exposure test's views see. The
 //! twin is [`super::OpenViews::remove_exposed`].
 
-use super::TILE;
+use super::{MAX_VIEWS, TILE};
 use crate::gpu::{Gpu, GpuError};
 
 const SHADER: &str = include_str!("../../../shaders/exposure.wgsl");
@@ -9,8 +9,9 @@ const SHADER: &str = include_str!("../../../shaders/exposure.wgsl");
 /// Built when a cook opens the device, like the voxel stages' entry points.
 pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "seen_corners")];
 
-/// The length of the shader's uniform array of view rows: five a view.
-const VIEW_ROWS: usize = 1600;
+/// The length of the shader's uniform array of view rows: five a view, for the most views.
+const VIEW_ROWS: usize = 1880;
+const _: () = assert!(VIEW_ROWS >= 5 * MAX_VIEWS);
 
 /// The corners of a grid of `corner_dims` (z fastest) that a view sees, one bit each, testing
 /// only those set in `needed`: (word, its bits) for each word with a bit set. `rows` holds five
@@ -64,4 +65,14 @@ pub fn seen_corners(
         );
         gpu.read(&seen)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shaders_array_of_view_rows_is_as_long_as_the_host_fills() {
+        assert!(SHADER.contains(&format!("var<uniform> views: array<vec4<f32>, {VIEW_ROWS}>;")));
+    }
 }

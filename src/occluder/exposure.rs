@@ -1189,8 +1189,8 @@ fn opening_eyes(
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
     let mut openings = openings(mesh, boundary);
     openings.sort_by(|a, b| b.2.total_cmp(&a.2));
-    // Found only when a rim point needs it: most pass drawn in or towards the centre.
-    let beside_rim = std::cell::OnceCell::new();
+    // The way into the opening beside each rim vertex.
+    let off = off_rim(mesh, boundary);
     let (lo, hi) = mesh.bounds();
     let size = f64::from((hi - lo).length());
     let bottom = f64::from(lo.y) + 1e-3 * size;
@@ -1228,7 +1228,7 @@ fn opening_eyes(
             // The first of them in a gap of a part inside another is kept as well.
             let first = c.map_or(centre, |v| position(v) + (centre - position(v)) * 0.2);
             let beside = |v: u32, d: DVec3| position(v) + d.normalize_or_zero() * 2.0 * pixel;
-            let away = |v: u32| beside_rim.get_or_init(|| off_rim(mesh, boundary)).get(&v).copied();
+            let away = |v: u32| off.get(&v).copied();
             let besides = c.iter().flat_map(|&v| {
                 let towards = std::iter::once_with(move || beside(v, centre - position(v)));
                 towards.chain(std::iter::once_with(move || beside(v, away(v).unwrap_or_default())))
@@ -1253,9 +1253,8 @@ fn opening_eyes(
                 }
             }
         }
-        let off = beside_rim.get_or_init(|| off_rim(mesh, boundary));
         mouths.extend(
-            mouth_points(rim, (boundary, off), field, pixel, position)
+            mouth_points(rim, (boundary, &off), field, pixel, position)
                 .into_iter()
                 .filter(|p| top.max(p.y) > bottom)
                 .map(|p| (p, top.max(p.y))),

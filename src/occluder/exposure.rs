@@ -19,7 +19,8 @@
 //! shows only along lines that pass an opening of the enclosing part first: too few for the
 //! views above or the cameras in that opening to sample. Where those see such an opening along
 //! a clear line, it gets cameras of its own; where none does, it lies in a closed part, and
-//! nothing reaches it.
+//! nothing reaches it. So does the mouth of a slot inside another part, and the window where
+//! two parts' openings cross, where few of the views above see it.
 //!
 //! A crack between parts that nearly touch is narrower than a pixel, so pixel centres rarely
 //! fall in it, yet what lies behind it shows. Along a boundary edge with another part of the
@@ -1222,6 +1223,8 @@ fn opening_eyes(
                 .find(|&q| field.winding(q) < 0.5)
         };
         let top = rim.iter().map(|&v| position(v).y).fold(f64::NEG_INFINITY, f64::max);
+        // A camera at `p` counts up to the opening's top, or its own height where higher.
+        let camera = |p: DVec3| Some((p, top.max(p.y))).filter(|&(_, horizon)| horizon > bottom);
         for c in &chosen {
             // The centre or a rim point drawn in, if in a gap; else, for a rim point, two pixels
             // off the rim: towards the centre, then away from the rim's triangles; else moved out.
@@ -1244,20 +1247,13 @@ fn opening_eyes(
                     None => {}
                 }
             }
-            for (p, list) in [
-                (eye.or_else(|| outside_along_normal(first)), &mut eyes),
-                (inside_another, &mut enclosed),
-            ] {
-                if let Some(p) = p.filter(|p| top.max(p.y) > bottom) {
-                    list.push((p, top.max(p.y)));
-                }
-            }
+            eyes.extend(eye.or_else(|| outside_along_normal(first)).and_then(camera));
+            enclosed.extend(inside_another.and_then(camera));
         }
         mouths.extend(
             mouth_points(rim, (boundary, &off), field, pixel, position)
                 .into_iter()
-                .filter(|p| top.max(p.y) > bottom)
-                .map(|p| (p, top.max(p.y))),
+                .filter_map(camera),
         );
         if eyes.len() >= MAX_EYES {
             eyes.truncate(MAX_EYES);

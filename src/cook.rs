@@ -767,9 +767,11 @@ impl<'a> Run<'a> {
             Err(GpuError::Unsupported(why)) if gpu.is_some() => (work(None), Some(why)),
             out => (out, None),
         })?;
+        // A stage that found the CPU faster for its work ran no pass.
+        let ran_passes = gpu.is_some_and(|gpu| gpu.take_passes() > 0);
         match fallback {
             Some(why) => self.notes.push(format!("{stage} ran on the CPU: {why}")),
-            None if gpu.is_some() => self.gpu_stages.push(stage),
+            None if ran_passes => self.gpu_stages.push(stage),
             None => {}
         }
         Ok(out?)
@@ -789,7 +791,8 @@ impl<'a> Run<'a> {
             }
             Ok::<_, GpuError>(placement)
         })??;
-        self.gpu = placement.gpu.map(|g| Arc::new(g.timed()));
+        let auto = choice == gpu::DeviceChoice::Auto;
+        self.gpu = placement.gpu.map(|g| Arc::new(g.timed().where_it_pays(auto)));
         self.notes.extend(placement.why_cpu);
         Ok(())
     }
@@ -1022,20 +1025,28 @@ mod tests {
     }
 
     #[test]
-    fn a_stage_the_device_refuses_runs_on_the_cpu_with_a_note_and_is_not_listed() {
+    fn a_stage_is_listed_on_the_gpu_where_it_ran_passes_there_and_noted_where_refused() {
         let Some(gpu) = gpu::device_for_tests() else {
             return;
         };
         let mut run = Run::new(0.0, &|_, _| Ok(()));
-        run.gpu = Some(gpu);
+        run.gpu = Some(Arc::new(gpu.timed()));
         let refused = run.on_device("exposure-voxels", |gpu| match gpu {
             Some(_) => Err(GpuError::Unsupported("too large for one binding".into())),
             None => Ok("cpu"),
         });
         assert_eq!(refused.unwrap(), "cpu");
-        let ran = run.on_device("inside", |gpu| Ok(gpu.map_or("cpu", |_| "gpu")));
-        assert_eq!(ran.unwrap(), "gpu");
-        assert_eq!(run.gpu_stages, ["inside"]);
+        let mesh = Mesh {
+            positions: vec![glam::Vec3::ZERO, glam::Vec3::X, glam::Vec3::Y],
+            triangles: vec![[0, 1, 2]],
+        };
+        let grid = fit_grid(&mesh, 8);
+        let ran = run.on_device("surface", |gpu| voxel::surface(&mesh, &grid, gpu));
+        assert!(ran.unwrap().contains(&true));
+        // Handed the device, this one found the CPU faster for its work: no pass ran there.
+        let declined = run.on_device("exposure-render", |gpu| Ok(gpu.is_some()));
+        assert!(declined.unwrap());
+        assert_eq!(run.gpu_stages, ["surface"]);
         assert_eq!(run.notes, ["exposure-voxels ran on the CPU: too large for one binding"]);
     }
 }

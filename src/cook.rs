@@ -426,7 +426,7 @@ fn fit_grid(mesh: &Mesh, resolution: usize) -> Grid {
 
 /// Solid voxels that no triangle touches.
 fn inner_voxels(solid: &[bool], surface: &[bool]) -> Vec<bool> {
-    solid.iter().zip(surface).map(|(&s, &t)| s && !t).collect()
+    solid.par_iter().zip(surface).map(|(&s, &t)| s && !t).collect()
 }
 
 fn expansion(cook: &CookSettings) -> boxes::ExpansionSettings {

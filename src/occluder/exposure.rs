@@ -550,14 +550,13 @@ impl OpenViews {
             Some(gpu) => self.seen_corners_on(gpu, grid, &needed)?,
             None => self.seen_corners(grid, &needed),
         };
-        let exposed: Vec<usize> = (0..inner.len())
-            .into_par_iter()
-            .filter(|&i| inner[i] && corners_of(i).any(|c| seen[c]))
-            .collect();
-        for &i in &exposed {
-            inner[i] = false;
-        }
-        Ok(exposed.len())
+        // Each voxel's answer is its own corners': cleared in place.
+        Ok(inner
+            .par_iter_mut()
+            .enumerate()
+            .filter(|(i, inside)| **inside && corners_of(*i).any(|c| seen[c]))
+            .map(|(_, inside)| *inside = false)
+            .count())
     }
 
     /// Of the `needed` grid corners (z fastest), those some view sees. The corners go in bricks

@@ -13,6 +13,12 @@ pub const ENTRY_POINTS: [(&str, &str); 1] = [(SHADER, "depth_min")];
 
 /// Pixel tests one thread may make over its views: under llvmpipe's 65535 loop iterations.
 const THREAD_PIXELS: usize = 49152;
+/// Pixel tests a thread makes on a hardware GPU, which runs many threads at once, so that a
+/// large triangle's rows spread over many (unless the items would be more than `MAX_ITEMS`).
+const HARDWARE_THREAD_PIXELS: usize = 1024;
+/// Work items past which a thread's pixels grow beyond `HARDWARE_THREAD_PIXELS` (16 MiB of
+/// them; whole rows a thread make them at most twice as many).
+const MAX_ITEMS: usize = 1 << 20;
 /// The shader's `nearness` key of an empty pixel.
 const EMPTY: u32 = 0;
 /// The most views one dispatch draws: the shader's uniform array holds three rows each.
@@ -37,13 +43,14 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
     }
     // On a software adapter a thread draws its item in as many views as fit its budget with a
     // row of the image each: llvmpipe spends more setting a thread up than drawing a tiny
-    // triangle. A hardware GPU runs a thread per item and view at once (on an H200, spider's 160
-    // sky views took 11.8 ms of device time drawn 160 to a thread).
-    let views_per_thread = match gpu.info.device_type {
-        wgpu::DeviceType::Cpu => (THREAD_PIXELS / pixels).clamp(1, views.len()),
-        _ => 1,
+    // triangle. A hardware GPU runs a thread per item and view at once, items of few pixels (on
+    // an H200, spider's 160 sky views took 11.8 ms of device time drawn 160 to a thread).
+    let (views_per_thread, least_pixels) = match gpu.info.device_type {
+        wgpu::DeviceType::Cpu => ((THREAD_PIXELS / pixels).clamp(1, views.len()), THREAD_PIXELS),
+        _ => (1, HARDWARE_THREAD_PIXELS),
     };
-    let items = work_items(mesh, scale, pixels, views_per_thread);
+    let most_pixels = THREAD_PIXELS / views_per_thread;
+    let items = work_items(mesh, scale, pixels, [least_pixels.min(most_pixels), most_pixels]);
     let image_bytes = (pixels * pixels * 4) as u64;
     let per_dispatch = ((gpu.max_binding / image_bytes) as usize).min(MAX_VIEWS);
     let largest_input = [mesh.positions.len() * 12, mesh.triangles.len() * 12, items.len() * 16];
@@ -106,16 +113,25 @@ fn depth_of(key: u32) -> f32 {
 }
 
 /// (triangle, first row, rows, 0) per run of rows: a triangle's projected bounds are at most its
-/// diameter times `scale` pixels across in any view, and at most the image, split so no thread
-/// tests more than `THREAD_PIXELS` pixels over its `views_per_thread` views.
-fn work_items(mesh: &Mesh, scale: f64, pixels: usize, views_per_thread: usize) -> Vec<[u32; 4]> {
-    let mut items = Vec::with_capacity(mesh.triangles.len());
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        let corners = tri.map(|v| mesh.positions[v as usize].as_dvec3());
-        let centre = (corners[0] + corners[1] + corners[2]) / 3.0;
-        let reach = corners.iter().map(|c| c.distance(centre)).fold(0.0, f64::max);
-        let side = ((2.0 * reach * scale).ceil() as usize + 2).min(pixels);
-        let rows = (THREAD_PIXELS / views_per_thread / side).max(1);
+/// diameter times `scale` pixels across in any view, and at most the image, split so that a
+/// thread tests the fewest pixels in one view from `[least, most]` that keeps the bounds'
+/// pixels over `MAX_ITEMS` threads.
+fn work_items(mesh: &Mesh, scale: f64, pixels: usize, [least, most]: [usize; 2]) -> Vec<[u32; 4]> {
+    let sides: Vec<usize> = mesh
+        .triangles
+        .iter()
+        .map(|tri| {
+            let corners = tri.map(|v| mesh.positions[v as usize].as_dvec3());
+            let centre = (corners[0] + corners[1] + corners[2]) / 3.0;
+            let reach = corners.iter().map(|c| c.distance(centre)).fold(0.0, f64::max);
+            ((2.0 * reach * scale).ceil() as usize + 2).min(pixels)
+        })
+        .collect();
+    let bounds: usize = sides.iter().map(|side| side * side).sum();
+    let thread_pixels = bounds.div_ceil(MAX_ITEMS).clamp(least, most);
+    let mut items = Vec::with_capacity(sides.len());
+    for (t, side) in sides.into_iter().enumerate() {
+        let rows = (thread_pixels / side).max(1);
         for first in (0..side).step_by(rows) {
             items.push([t as u32, first as u32, rows as u32, 0]);
         }
@@ -125,6 +141,42 @@ fn work_items(mesh: &Mesh, scale: f64, pixels: usize, views_per_thread: usize) -
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// `n` copies of a triangle whose bounds fill a 512-pixel image at a scale of 512 a unit.
+    fn large_triangles(n: usize) -> Mesh {
+        Mesh {
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+            triangles: vec![[0, 1, 2]; n],
+        }
+    }
+
+    #[test]
+    fn a_hardware_gpus_items_are_small_until_there_would_be_too_many() {
+        let (pixels, scale) = (512, 512.0);
+        let few = work_items(
+            &large_triangles(2),
+            scale,
+            pixels,
+            [HARDWARE_THREAD_PIXELS, THREAD_PIXELS],
+        );
+        let rows = (HARDWARE_THREAD_PIXELS / pixels) as u32;
+        assert_eq!(few.len(), 2 * pixels / rows as usize);
+        assert!(few.iter().all(|&[_, first, r, _]| r == rows && first % rows == 0));
+        // On lavapipe, one item per a thread's whole budget.
+        let software = work_items(&large_triangles(2), scale, pixels, [THREAD_PIXELS; 2]);
+        assert_eq!(software.len(), 2 * pixels.div_ceil(THREAD_PIXELS / pixels));
+        // 20,000 of them at 1,024 pixels a thread would be 5 million items.
+        let many = work_items(
+            &large_triangles(20_000),
+            scale,
+            pixels,
+            [HARDWARE_THREAD_PIXELS, THREAD_PIXELS],
+        );
+        assert!(many.len() <= 2 * MAX_ITEMS + 20_000, "{} items", many.len());
+    }
+
     #[test]
     fn depth_keys_grow_nearer_and_come_back_unchanged() {
         // `nearness` in the shader, written out for the test.

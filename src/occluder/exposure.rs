@@ -543,10 +543,10 @@ impl OpenViews {
             (0..8).map(move |c| corner_index(grid, [x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1)]))
         };
         let needed = needed_corners(grid, inner);
-        let to_test = needed.par_iter().filter(|&&n| n).count();
+        let to_test = || needed.par_iter().filter(|&&n| n).count();
         // `Unsupported` on the GPU leaves `inner` as it was, for the caller to run this again
         // on the CPU.
-        let seen = match gpu.filter(|gpu| gpu.pays_for(to_test, CORNERS_A_THREAD)) {
+        let seen = match gpu.filter(|gpu| gpu.pays_for(to_test(), CORNERS_A_THREAD)) {
             Some(gpu) => self.seen_corners_on(gpu, grid, &needed)?,
             None => self.seen_corners(grid, &needed),
         };

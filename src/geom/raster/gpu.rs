@@ -52,7 +52,7 @@ pub fn depth_images(gpu: &Gpu, mesh: &Mesh, views: &[View]) -> Result<Vec<Vec<f3
     let most_pixels = THREAD_PIXELS / views_per_thread;
     let items = work_items(mesh, scale, pixels, [least_pixels.min(most_pixels), most_pixels]);
     let image_bytes = (pixels * pixels * 4) as u64;
-    let per_dispatch = ((gpu.max_binding / image_bytes) as usize).min(MAX_VIEWS);
+    let per_dispatch = views_per_dispatch((gpu.max_binding / image_bytes) as usize, items.len(), views_per_thread);
     let largest_input = [mesh.positions.len() * 12, mesh.triangles.len() * 12, items.len() * 16];
     if per_dispatch == 0 || largest_input.into_iter().any(|bytes| bytes as u64 > gpu.max_binding) {
         return Err(GpuError::Unsupported(
@@ -110,6 +110,14 @@ fn depth_of(key: u32) -> f32 {
         k if k & 0x8000_0000 != 0 => f32::from_bits(k),
         k => f32::from_bits(!k & 0x7fff_ffff),
     }
+}
+
+/// Views one dispatch draws: no more than a binding holds the images of (`binding_views`) or the
+/// shader's array, and few enough that its threads, `items` for each group of
+/// `views_per_thread` views, are numbered in a u32 as the shader numbers them.
+fn views_per_dispatch(binding_views: usize, items: usize, views_per_thread: usize) -> usize {
+    let numbered = u32::MAX as usize / items.max(1) * views_per_thread;
+    binding_views.min(MAX_VIEWS).min(numbered)
 }
 
 /// (triangle, first row, rows, 0) per run of rows: a triangle's projected bounds are at most its
@@ -175,6 +183,17 @@ mod tests {
             [HARDWARE_THREAD_PIXELS, THREAD_PIXELS],
         );
         assert!(many.len() <= 2 * MAX_ITEMS + 20_000, "{} items", many.len());
+    }
+
+    #[test]
+    fn a_dispatch_holds_no_more_views_than_its_threads_can_be_numbered_for() {
+        assert_eq!(views_per_dispatch(1000, 10_000, 1), MAX_VIEWS);
+        assert_eq!(views_per_dispatch(40, 10_000, 1), 40);
+        // 20 million items, a thread each per view: 214 views make 4.28 billion threads.
+        let views = views_per_dispatch(1000, 20_000_000, 1);
+        assert_eq!(views, 214);
+        assert!(20_000_000 * views as u64 <= u64::from(u32::MAX));
+        assert_eq!(views_per_dispatch(1000, 20_000_000, 96), MAX_VIEWS);
     }
 
     #[test]

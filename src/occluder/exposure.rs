@@ -1194,7 +1194,7 @@ fn opening_eyes(
 ) -> (Vec<Camera>, Vec<Camera>, Vec<Camera>) {
     let position = |v: u32| mesh.positions[v as usize].as_dvec3();
     let mut openings = openings(mesh, boundary);
-    openings.sort_by(|a, b| b.2.total_cmp(&a.2));
+    openings.sort_by(|a, b| b.size.total_cmp(&a.size));
     // The way into the opening beside each rim vertex.
     let off = off_rim(mesh, boundary);
     let (lo, hi) = mesh.bounds();
@@ -1202,7 +1202,13 @@ fn opening_eyes(
     let bottom = f64::from(lo.y) + 1e-3 * size;
     let (mut eyes, mut enclosed): (Vec<Camera>, _) = (Vec::new(), Vec::new());
     let mut mouths = Vec::new();
-    for (rim, area, opening_size) in &openings {
+    for Rim {
+        vertices: rim,
+        edges,
+        area,
+        size: opening_size,
+    } in &openings
+    {
         let centre = rim.iter().map(|&v| position(v)).sum::<DVec3>() / rim.len() as f64;
         let mut chosen: Vec<Option<u32>> = vec![None];
         while chosen.len() < EYES_PER_OPENING.min(rim.len() + 1) {
@@ -1256,7 +1262,7 @@ fn opening_eyes(
             enclosed.extend(inside_another.and_then(camera));
         }
         mouths.extend(
-            mouth_points(rim, (boundary, &off), field, pixel, position)
+            mouth_points(edges.iter().map(|&i| &boundary[i]), &off, field, pixel, position)
                 .into_iter()
                 .filter_map(camera),
         );
@@ -1268,24 +1274,21 @@ fn opening_eyes(
     (eyes, enclosed, mouths)
 }
 
-/// Points two pixels (`pixel`) off an opening's rim (`rim`, its vertices) into the opening,
-/// every two pixels along it, where the winding number is near a whole number k >= 1: the
+/// Points two pixels (`pixel`) off an opening's rim (`rim`, its edges) into the opening, every
+/// two pixels along it, where the winding number is near a whole number k >= 1: the
 /// opening's mouth where it lies inside k other parts, its own share there far from a half, as
 /// in a slot between a lid and its rim, which [`gap_depth`] misses; or a window where two
 /// parts' openings cross, a half from each. What lies inside those parts shows through there,
 /// in directions that neither the opening's own cameras nor the sky views may sample. One
 /// point per eight pixels of rim at most.
-fn mouth_points(
-    rim: &[u32],
-    (boundary, off): (&[BoundaryEdge], &HashMap<u32, DVec3>),
+fn mouth_points<'e>(
+    rim: impl Iterator<Item = &'e BoundaryEdge>,
+    off: &HashMap<u32, DVec3>,
     field: &WindingField,
     pixel: f64,
     position: impl Fn(u32) -> DVec3,
 ) -> Vec<DVec3> {
-    let on_rim: HashSet<u32> = rim.iter().copied().collect();
-    let samples: Vec<DVec3> = boundary
-        .iter()
-        .filter(|e| on_rim.contains(&e.a))
+    let samples: Vec<DVec3> = rim
         .flat_map(|e| {
             let (a, b) = (position(e.a), position(e.b));
             let into = [e.a, e.b]
@@ -1317,13 +1320,24 @@ fn gap_depth(winding: f64) -> Option<u32> {
     ((winding - 0.5 - k).abs() < OPEN_WINDING && k >= 0.0).then_some(k as u32)
 }
 
-/// Each opening (a connected run of boundary edges) as its rim's vertices, its vector area and its
-/// extent.
-fn openings(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(Vec<u32>, DVec3, f64)> {
-    let mut neighbours: HashMap<u32, Vec<&BoundaryEdge>> = HashMap::new();
-    for e in boundary {
-        neighbours.entry(e.a).or_default().push(e);
-        neighbours.entry(e.b).or_default().push(e);
+/// An opening's rim: a connected run of boundary edges.
+struct Rim {
+    /// Its vertices.
+    vertices: Vec<u32>,
+    /// Its edges, as indices into the boundary, in the boundary's order.
+    edges: Vec<usize>,
+    /// Its vector area.
+    area: DVec3,
+    /// Its extent.
+    size: f64,
+}
+
+/// Each opening's rim.
+fn openings(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<Rim> {
+    let mut neighbours: HashMap<u32, Vec<usize>> = HashMap::new();
+    for (i, e) in boundary.iter().enumerate() {
+        neighbours.entry(e.a).or_default().push(i);
+        neighbours.entry(e.b).or_default().push(i);
     }
     let mut starts: Vec<u32> = neighbours.keys().copied().collect();
     starts.sort_unstable();
@@ -1333,24 +1347,34 @@ fn openings(mesh: &Mesh, boundary: &[BoundaryEdge]) -> Vec<(Vec<u32>, DVec3, f64
         let (lo, hi) = crate::mesh::point_bounds(rim.iter().map(|&v| position(v)));
         (hi - lo).length()
     };
-    let mut openings: Vec<(Vec<u32>, DVec3, f64)> = Vec::new();
+    let mut openings = Vec::new();
     for start in starts {
-        let (mut stack, mut rim, mut area) = (vec![start], Vec::new(), DVec3::ZERO);
+        let (mut stack, mut rim, mut edges, mut area) = (vec![start], Vec::new(), Vec::new(), DVec3::ZERO);
         while let Some(v) = stack.pop() {
             if visited.insert(v) {
                 rim.push(v);
-                for e in &neighbours[&v] {
+                for &i in &neighbours[&v] {
+                    let e = &boundary[i];
                     stack.push(if e.a == v { e.b } else { e.a });
                     // Each edge is met from both ends: counted from its first.
                     if e.a == v {
+                        edges.push(i);
                         area += position(e.a).cross(position(e.b)) * f64::from(e.weight) * 0.5;
                     }
                 }
             }
         }
         if !rim.is_empty() {
+            // An edge from a vertex to itself is met twice from its first.
+            edges.sort_unstable();
+            edges.dedup();
             let size = extent(&rim);
-            openings.push((rim, area, size));
+            openings.push(Rim {
+                vertices: rim,
+                edges,
+                area,
+                size,
+            });
         }
     }
     openings

@@ -382,6 +382,16 @@ pub(crate) fn mesh_pipeline(
 /// Threads in a workgroup, as the compute shaders declare.
 pub const WORKGROUP: u32 = 64;
 
+/// Work items one pass has before each item's share of the work grows past its least (16 MiB of
+/// `[u32; 4]` items): large triangles on a fine grid or image cannot size the list.
+pub const MAX_ITEMS: usize = 1 << 20;
+
+/// The units of `work` one work item takes: `least`, or more where that would make over
+/// [`MAX_ITEMS`] items, up to `most`; at least one.
+pub fn units_per_item(work: usize, [least, most]: [usize; 2]) -> usize {
+    work.div_ceil(MAX_ITEMS).max(least).min(most).max(1)
+}
+
 /// Workgroups are dispatched in a 2D grid of at most this many along x.
 pub const MAX_GROUPS_X: u32 = 65535;
 

@@ -7,7 +7,7 @@
 
 use super::Grid;
 use super::surface::SLACK;
-use crate::gpu::{Gpu, GpuError, WORKGROUP};
+use crate::gpu::{Gpu, GpuError, WORKGROUP, units_per_item};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 use std::ops::Range;
@@ -100,12 +100,10 @@ pub(super) fn triangle_chunks(gpu: &Gpu, mesh: &Mesh, grid: &Grid) -> Result<Vec
 /// threads, which a hardware GPU runs at once (on an H200 a three-storey building's surface at
 /// 256³ took 21.0 ms of device time in items of 50,000 voxels, 0.2 ms in items of 256).
 const ITEM_TESTS: usize = 256;
-/// Work items one chunk's pass has at most (16 MiB of them): past that, items grow towards
-/// [`LOOP_BUDGET`], so that a mesh of large triangles at a fine grid cannot size the list.
-const MAX_ITEMS: usize = 1 << 20;
 
 /// The work items of one chunk's `triangles` over one slab: (triangle, first unit, end unit, 0),
-/// numbered as `slab_bounds` in common.wgsl does, each within the loop budget.
+/// numbered as `slab_bounds` in common.wgsl does, each within the loop budget: items grow
+/// towards it rather than number more than [`MAX_ITEMS`](crate::gpu::MAX_ITEMS).
 fn work_items(triangles: &[[[f32; 3]; 3]], grid: &Grid, slab: &Range<usize>, units: Units) -> Vec<[u32; 4]> {
     // Loop iterations a unit costs.
     let unit_cost = match units {
@@ -126,10 +124,7 @@ fn work_items(triangles: &[[[f32; 3]; 3]], grid: &Grid, slab: &Range<usize>, uni
         })
         .collect();
     let units_in_all: usize = counts.iter().sum();
-    let per_item = units_in_all
-        .div_ceil(MAX_ITEMS)
-        .clamp(ITEM_TESTS / unit_cost, LOOP_BUDGET / unit_cost)
-        .max(1);
+    let per_item = units_per_item(units_in_all, [ITEM_TESTS / unit_cost, LOOP_BUDGET / unit_cost]);
     let mut items = Vec::with_capacity(counts.len());
     for (t, count) in counts.into_iter().enumerate() {
         for first in (0..count).step_by(per_item) {
@@ -203,6 +198,7 @@ pub(super) fn bit_stage(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gpu::MAX_ITEMS;
     use glam::Vec3;
 
     /// Items of `n` triangles, each across the whole of a `side`³ grid, over its one slab, and

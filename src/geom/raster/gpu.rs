@@ -2,7 +2,7 @@
 //! in compute, read back in one go. The twin is [`super::depth_image`].
 
 use crate::geom::camera::View;
-use crate::gpu::{Gpu, GpuError, WORKGROUP};
+use crate::gpu::{Gpu, GpuError, WORKGROUP, units_per_item};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 
@@ -16,9 +16,6 @@ const THREAD_PIXELS: usize = 49152;
 /// Pixel tests a thread makes on a hardware GPU, which runs many threads at once, so that a
 /// large triangle's rows spread over many (unless the items would be more than `MAX_ITEMS`).
 const HARDWARE_THREAD_PIXELS: usize = 1024;
-/// Work items past which a thread's pixels grow beyond `HARDWARE_THREAD_PIXELS` (16 MiB of
-/// them; whole rows a thread make them at most twice as many).
-const MAX_ITEMS: usize = 1 << 20;
 /// The shader's `nearness` key of an empty pixel.
 const EMPTY: u32 = 0;
 /// The most views one dispatch draws: the shader's uniform array holds three rows each.
@@ -123,7 +120,8 @@ fn views_per_dispatch(binding_views: usize, items: usize, views_per_thread: usiz
 /// (triangle, first row, rows, 0) per run of rows: a triangle's projected bounds are at most its
 /// diameter times `scale` pixels across in any view, and at most the image, split so that a
 /// thread tests the fewest pixels in one view from `[least, most]` that keeps the bounds'
-/// pixels over `MAX_ITEMS` threads.
+/// pixels over [`MAX_ITEMS`](crate::gpu::MAX_ITEMS) threads (whole rows a thread make the
+/// items at most twice as many).
 fn work_items(mesh: &Mesh, scale: f64, pixels: usize, [least, most]: [usize; 2]) -> Vec<[u32; 4]> {
     let sides: Vec<usize> = mesh
         .triangles
@@ -136,7 +134,7 @@ fn work_items(mesh: &Mesh, scale: f64, pixels: usize, [least, most]: [usize; 2])
         })
         .collect();
     let bounds: usize = sides.iter().map(|side| side * side).sum();
-    let thread_pixels = bounds.div_ceil(MAX_ITEMS).clamp(least, most);
+    let thread_pixels = units_per_item(bounds, [least, most]);
     let mut items = Vec::with_capacity(sides.len());
     for (t, side) in sides.into_iter().enumerate() {
         let rows = (thread_pixels / side).max(1);
@@ -150,6 +148,7 @@ fn work_items(mesh: &Mesh, scale: f64, pixels: usize, [least, most]: [usize; 2])
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gpu::MAX_ITEMS;
     use glam::Vec3;
 
     /// `n` copies of a triangle whose bounds fill a 512-pixel image at a scale of 512 a unit.

@@ -65,7 +65,7 @@ pub fn lesser(a: f64, b: f64) -> f64 {
 
 /// The greater of `a` and `b`, `a` on a tie or where `b` is NaN, as `max` would; `a` is not NaN.
 #[inline(always)]
-pub fn greater(a: f64, b: f64) -> f64 {
+pub fn greater<T: PartialOrd>(a: T, b: T) -> T {
     if b > a { b } else { a }
 }
 

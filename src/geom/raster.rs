@@ -788,16 +788,26 @@ pub fn draw_depth_nearest_first(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) 
     let mut left_out = 0;
     for (_, t) in order {
         let q = corners(t);
-        if nearest_bound(&q, near, n).is_some_and(|(bound, span)| tiles.behind(depth, bound, span)) {
+        let bound = nearest_bound(&q, near, n);
+        if bound.is_some_and(|(bound, span)| tiles.behind(depth, bound, span)) {
             left_out += 1;
             continue;
         }
         let tri = mesh.corners(t).map(|p| p.as_dvec3());
-        let mut pixels = EachPixel(|i: usize, d: f64| {
-            depth[i] = depth[i].min(d as f32);
-            tiles.drawn(i);
-        });
-        fill_perspective(view, &tri, q, Coverage::Centres, Span::all(view), &mut pixels);
+        match bound {
+            // Its pixels lie in the span: its tiles are marked once, not a pixel at a time.
+            Some((_, span)) => {
+                fill_perspective(view, &tri, q, Coverage::Centres, Span::all(view), &mut Nearest(depth));
+                tiles.drawn_in(span);
+            }
+            None => {
+                let mut pixels = EachPixel(|i: usize, d: f64| {
+                    depth[i] = depth[i].min(d as f32);
+                    tiles.drawn(i);
+                });
+                fill_perspective(view, &tri, q, Coverage::Centres, Span::all(view), &mut pixels);
+            }
+        }
     }
     left_out
 }
@@ -828,6 +838,14 @@ impl Tiles {
     fn drawn(&mut self, pixel: usize) {
         let (x, y) = (pixel % self.n, pixel / self.n);
         self.stale[(y / CULL_TILE) * self.across + x / CULL_TILE] = true;
+    }
+
+    /// Marks every tile of the pixels `span`.
+    fn drawn_in(&mut self, span: Span) {
+        for ty in span.y.0 / CULL_TILE..=span.y.1 / CULL_TILE {
+            let row = ty * self.across;
+            self.stale[row + span.x.0 / CULL_TILE..=row + span.x.1 / CULL_TILE].fill(true);
+        }
     }
 
     /// Whether every tile of the pixels `span` of `depth` holds nothing farther than `bound`.

@@ -36,7 +36,7 @@ use crate::geom::grid_counts::GridCounts;
 use crate::geom::meshlets::{Meshlet, line_blocked, meshlets};
 use crate::geom::proximity::SurfaceIndex;
 use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
-use crate::geom::{clamped_index, with_avx2};
+use crate::geom::{clamped_index, greater, with_avx2};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
 use crate::voxel::Grid;
@@ -1106,17 +1106,19 @@ fn farthest_nearby_in_window(window: &[bool], depth: &[f32], out: &mut [f32]) {
 
 /// Each pixel's farthest depth over its 3×3 neighbourhood (infinite where any is empty), into
 /// `out`: the farthest over each row's neighbours, then over those of the rows around. Rows are
-/// `n` wide, `n` at least 2, and there are at least 2 of them.
+/// `n` wide, `n` at least 2, and there are at least 2 of them. Depths are never NaN.
 fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
-    // Slices zipped, in AVX2's wider lanes where the CPU has them: the same maxima.
+    // Slices zipped, in AVX2's wider lanes where the CPU has them: the same maxima, one
+    // instruction each, as no depth is NaN.
+    let max3 = |a: f32, b: f32, c: f32| greater(greater(a, b), c);
     with_avx2(|| {
         for (row, far) in depth.chunks_exact(n).zip(out.chunks_exact_mut(n)) {
-            far[0] = row[0].max(row[1]).max(0.0);
+            far[0] = max3(row[0], row[1], 0.0);
             let around = row.iter().zip(&row[1..]).zip(&row[2..]);
             for (far, ((left, this), right)) in far[1..n - 1].iter_mut().zip(around) {
-                *far = left.max(*this).max(*right).max(0.0);
+                *far = greater(max3(*left, *this, *right), 0.0);
             }
-            far[n - 1] = row[n - 2].max(row[n - 1]).max(0.0);
+            far[n - 1] = max3(row[n - 2], row[n - 1], 0.0);
         }
         // Over the rows around, in place, with the row above and this one as they were kept
         // aside: no image-sized buffer, whose pages a fresh allocation would fault in view
@@ -1129,7 +1131,7 @@ fn farthest_nearby(depth: &[f32], n: usize, out: &mut [f32]) {
             let below = if y + 1 < rows { &rest[..n] } else { &this[..] };
             let around = above.iter().zip(&this).zip(below);
             for (far, ((above, this), below)) in upto[y * n..].iter_mut().zip(around) {
-                *far = above.max(*this).max(*below);
+                *far = max3(*above, *this, *below);
             }
             std::mem::swap(&mut above, &mut this);
         }

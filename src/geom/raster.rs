@@ -795,7 +795,9 @@ pub fn draw_depth_nearest_first(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) 
         }
         let tri = mesh.corners(t).map(|p| p.as_dvec3());
         match bound {
-            // Its pixels lie in the span: its tiles are marked once, not a pixel at a time.
+            // Its pixels lie in the span: its tiles are marked once, not a pixel at a time, through
+            // the plain sink (one closure testing which arm applies costs teapot 4.5% more
+            // instructions).
             Some((_, span)) => {
                 fill_perspective(view, &tri, q, Coverage::Centres, Span::all(view), &mut Nearest(depth));
                 tiles.drawn_in(span);

@@ -1,13 +1,11 @@
 //! What several stages share and that imports nothing of the pipeline: cameras and their
 //! projections ([`camera`]), the rasterizer that draws meshes through them ([`raster`], with its
 //! GPU twin), which triangles lie near a point ([`proximity`]), the openings of a mesh narrower
-//! than a width, closed ([`openings`]), items grouped by a dense key ([`buckets`]), how many
-//! cells of a grid are flagged over a rectangle ([`grid_counts`]), a mesh cut
-//! into meshlets that a view keeps or skips whole ([`meshlets`]), and the conversions between
-//! pixel or cell indices and floats, the comparisons and the bit counts that their inner loops
-//! make.
+//! than a width, closed ([`openings`]), how many cells of a grid are flagged over a rectangle
+//! ([`grid_counts`]), a mesh cut into meshlets that a view keeps or skips whole ([`meshlets`]),
+//! and the conversions between pixel or cell indices and floats, the comparisons and the bit
+//! counts that their inner loops make.
 
-pub mod buckets;
 pub mod camera;
 pub mod grid_counts;
 pub mod meshlets;

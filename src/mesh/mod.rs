@@ -1,6 +1,8 @@
 //! Meshes in flat arrays: ingest from glTF/GLB, FBX, OBJ, PLY and STL, welding, validation and
-//! GLB export.
+//! GLB export; and items grouped by a dense key such as a vertex ([`buckets`]), which the stages
+//! above share.
 
+pub mod buckets;
 mod fbx;
 pub mod glb;
 mod gltf_in;

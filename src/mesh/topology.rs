@@ -2,7 +2,7 @@
 //! orientation of closed parts.
 
 use super::Mesh;
-use rayon::slice::ParallelSliceMut;
+use super::buckets::Buckets;
 use serde::Serialize;
 
 /// An edge of the surface's boundary chain: `weight` copies of the directed edge `a → b`.
@@ -98,17 +98,14 @@ pub fn orient_closed_components(mesh: &mut Mesh) -> Topology {
 /// winding and would leave no inside; a copy either way adds no surface. Where only some
 /// triangles have a copy (a fold, a fin), a copy is part of the surface, and stays.
 fn remove_doubled_copies(mesh: &mut Mesh, component: &[u32], count: usize) -> usize {
-    let mut corners: Vec<([u32; 3], u32)> = mesh
-        .triangles
-        .iter()
-        .zip(0..)
-        .map(|(tri, t)| {
+    let corners = sorted_by_vertex(
+        mesh.positions.len(),
+        mesh.triangles.iter().zip(0..).map(|(tri, t)| {
             let mut sorted = *tri;
             sorted.sort_unstable();
-            (sorted, t)
-        })
-        .collect();
-    corners.par_sort_unstable();
+            (sorted[0], (sorted, t))
+        }),
+    );
     let mut repeated = vec![false; mesh.triangles.len()];
     let mut doubled = vec![true; count];
     for same in corners.chunk_by(|a, b| a.0 == b.0) {
@@ -141,20 +138,28 @@ type Use = ((u32, u32), i32, u32);
 
 /// Every edge use of `mesh`, in order of key.
 fn directed_uses(mesh: &Mesh) -> Vec<Use> {
-    let mut uses: Vec<Use> = mesh
-        .triangles
-        .iter()
-        .zip(0..)
-        .flat_map(|(tri, t)| {
-            (0..3).map(move |k| {
-                let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                if a < b { ((a, b), 1, t) } else { ((b, a), -1, t) }
-            })
+    let uses = mesh.triangles.iter().zip(0..).flat_map(|(tri, t)| {
+        (0..3).map(move |k| {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            if a < b {
+                (a, ((a, b), 1, t))
+            } else {
+                (b, ((b, a), -1, t))
+            }
         })
-        .collect();
-    // Equal entries are the same value, so the parallel sort's order is the serial one's.
-    uses.par_sort_unstable();
-    uses
+    });
+    sorted_by_vertex(mesh.positions.len(), uses)
+}
+
+/// `items` sorted, each given with the vertex (below `vertices`) its order starts with: grouped
+/// by that vertex in a counting sort, then each group sorted, where a vertex has a few items.
+/// Equal items are the same value, so the order is a plain sort's.
+fn sorted_by_vertex<T: Copy + Default + Ord>(vertices: usize, items: impl Iterator<Item = (u32, T)> + Clone) -> Vec<T> {
+    let Buckets { starts, mut items } = Buckets::new(vertices, items.map(|(v, item)| (v as usize, item)));
+    for group in starts.windows(2) {
+        items[group[0]..group[1]].sort_unstable();
+    }
+    items
 }
 
 /// Each edge's uses, by its key, the keys in order; a triangle `turned` runs the other way.

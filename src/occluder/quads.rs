@@ -16,9 +16,9 @@
 
 use super::rectangle::{CellRect, Sweep};
 use super::{Panel, Shape, WorldBox};
-use crate::geom::buckets::Buckets;
 use crate::geom::grid_counts::GridCounts;
 use crate::geom::{ceil_index, f32_slack, floor_index, greater, index_to_f64, lesser};
+use crate::mesh::buckets::Buckets;
 use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::{Crossing, column_hit};
 use glam::{DMat3, DQuat, DVec3};
@@ -188,6 +188,9 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
 /// hundredth of a cell: all those where a classification that holds only within the boxes may
 /// hold ([`Solid::Points`]).
 struct Reach {
+    /// Whether each cell is reached, the second axis fastest.
+    reached: Vec<bool>,
+    cells_along_v: usize,
     /// How many cells are reached over rectangles of cells.
     counts: GridCounts,
 }
@@ -218,6 +221,8 @@ impl Reach {
         }
         Reach {
             counts: GridCounts::new(&reached, nu, nv),
+            reached,
+            cells_along_v: nv,
         }
     }
 
@@ -227,7 +232,7 @@ impl Reach {
     }
 
     fn holds(&self, u: usize, v: usize) -> bool {
-        self.any(&(u..u + 1), &(v..v + 1))
+        self.reached[u * self.cells_along_v + v]
     }
 }
 

@@ -6,8 +6,8 @@
 //! whole, which faces out with the solid; a double-sided piece whose region bends keeps the
 //! region's own triangles, as either side may be seen.
 
-use crate::geom::buckets::Buckets;
 use crate::mesh::Mesh;
+use crate::mesh::buckets::Buckets;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;

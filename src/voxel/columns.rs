@@ -6,9 +6,9 @@
 //! counted exactly once.
 
 use super::Grid;
-use crate::geom::buckets::Buckets;
 use crate::geom::clamped_index;
 use crate::mesh::Mesh;
+use crate::mesh::buckets::Buckets;
 use glam::{DVec2, DVec3};
 use num_traits::Float;
 use rayon::prelude::*;

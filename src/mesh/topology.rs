@@ -350,4 +350,31 @@ mod tests {
         let topology = orient_closed_components(&mut folded);
         assert_eq!((topology.duplicate_triangles, folded.triangles.len()), (0, 14));
     }
+
+    #[test]
+    fn edge_uses_by_vertex_come_in_a_plain_sorts_order() {
+        // A fan around vertex 0 and a strip, with repeated and flipped triangles: vertices
+        // with many uses, equal keys and equal uses.
+        let mut mesh = Mesh {
+            positions: vec![Vec3::ZERO; 40],
+            triangles: (1..39).map(|k| [0, k, k + 1]).collect(),
+        };
+        mesh.triangles.extend((5..30).map(|k| [k + 1, k, (k * 7) % 39 + 1]));
+        mesh.triangles.extend([[3, 2, 0], [0, 2, 3], [0, 1, 2]]);
+        let mut plain: Vec<Use> = (0..mesh.triangles.len())
+            .flat_map(|t| {
+                let tri = mesh.triangles[t];
+                (0..3).map(move |k| {
+                    let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                    if a < b {
+                        ((a, b), 1, t as u32)
+                    } else {
+                        ((b, a), -1, t as u32)
+                    }
+                })
+            })
+            .collect();
+        plain.sort_unstable();
+        assert_eq!(directed_uses(&mesh), plain);
+    }
 }

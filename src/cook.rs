@@ -109,7 +109,7 @@ pub fn cook_with_progress(
     // The key is of the mesh as given, which orient changes: of a copy, beside the stages that
     // are mostly serial, and dropped once the key is found.
     let given = mesh.clone();
-    let ((topology, input, openings, pieces), (key, key_ms)) = run.beside(
+    let ((topology, input, openings, (pieces, silhouettes)), (key, key_ms)) = run.beside(
         move || cache_key(&given, cook),
         |run| {
             let given_triangles = mesh.triangles.len();
@@ -117,9 +117,20 @@ pub fn cook_with_progress(
             run.note_duplicates(topology.duplicate_triangles);
             let input = InputReport::new(given_triangles, ingest, &topology);
             let openings = run.close_openings(&mut mesh, &mut topology, cook.smallest_hole)?;
-            let pieces = run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
-                find_surface_pieces(&mesh, &topology)
-            })?;
+            let find_pieces = |run: &mut Run| {
+                run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
+                    find_surface_pieces(&mesh, &topology)
+                })
+            };
+            // Whichever way an open mesh goes, its selection weighs pieces against the same
+            // silhouettes: drawn beside the surface pieces, which are found mostly serially.
+            let pieces = match topology.boundary.is_empty() {
+                true => (find_pieces(run)?, None),
+                false => {
+                    let (pieces, found) = run.beside(|| Silhouettes::new(&mesh), find_pieces)?;
+                    (pieces, Some(found))
+                }
+            };
             Ok((topology, input, openings, pieces))
         },
     )?;
@@ -138,22 +149,23 @@ pub fn cook_with_progress(
     // Low-poly and flat-shaded open art: its own surface may leave the voxel stages, and their
     // costly exposure test, nothing to add. A closed mesh has no exposure test, and its in-solid
     // quads sit behind its surface, where a runtime can cull what touches the wall's far side.
-    let open = !prepared.topology.boundary.is_empty();
-    // Every selection weighs pieces against the same silhouettes of the original.
-    let mut silhouettes = None;
-    let alone = match open && could_be_enough(&pieces, cook.max_triangles) {
-        false => None,
-        true => {
-            let (selected, found) = run.stage("surface-pieces", || {
-                let found = Silhouettes::new(&prepared.mesh);
-                (select_pieces(&found, &prepared.mesh, &[], &[], &pieces, cook), found)
+    let alone = match silhouettes
+        .as_ref()
+        .filter(|_| could_be_enough(&pieces, cook.max_triangles))
+    {
+        None => None,
+        Some((found, _)) => {
+            let selected = run.stage("surface-pieces", || {
+                select_pieces(found, &prepared.mesh, &[], &[], &pieces, cook)
             })?;
-            silhouettes = Some(found);
             Some(selected).filter(|(_, chosen)| chosen.covered >= cook.surface_enough)
         }
     };
     match alone {
         Some((occluder, chosen)) => {
+            if let Some((_, ms)) = silhouettes {
+                run.heard("silhouettes", ms)?;
+            }
             run.note_surface_alone(chosen.covered, cook.surface_enough);
             let parts = VoxelParts::skipped(fit_grid(&prepared.mesh, cook.resolution));
             finish(run, &prepared, parts, (occluder, chosen), settings, with_eval)
@@ -223,7 +235,7 @@ fn cook_voxels(
     mut run: Run,
     prepared: &Prepared,
     pieces: &[SurfacePiece],
-    silhouettes: Option<Silhouettes>,
+    silhouettes: Option<(Silhouettes, f64)>,
     settings: &Settings,
     with_eval: bool,
 ) -> Result<Cooked, CookError> {
@@ -309,12 +321,13 @@ struct VoxelStages {
 }
 
 /// Voxelize, classify, remove what an opening shows, and grow and refine the boxes; then the
-/// selection's silhouettes, unless an earlier selection found them.
+/// selection's silhouettes, unless they were drawn beside the surface pieces (an open mesh's,
+/// with the milliseconds they took, reported here in their place).
 fn voxel_stages(
     run: &mut Run,
     prepared: &Prepared,
     grid: &Grid,
-    silhouettes: Option<Silhouettes>,
+    silhouettes: Option<(Silhouettes, f64)>,
     cook: &CookSettings,
 ) -> Result<VoxelStages, CookError> {
     let uses = |shape: Shape| cook.shapes.contains(&shape);
@@ -361,7 +374,10 @@ fn voxel_stages(
     };
     let exposed_boxes = kept - box_candidates.len();
     let silhouettes = match silhouettes {
-        Some(found) => found,
+        Some((found, ms)) => {
+            run.heard("silhouettes", ms)?;
+            found
+        }
         None => run.stage("silhouettes", || Silhouettes::new(mesh))?,
     };
     Ok(VoxelStages {

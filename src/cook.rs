@@ -155,9 +155,10 @@ pub fn cook_with_progress(
     {
         None => None,
         Some((found, _)) => {
-            let selected = run.stage("surface-pieces", || {
+            // Their selection, part of the surface pieces' stage: progress has heard the key.
+            let selected = run.more_of("surface-pieces", || {
                 select_pieces(found, &prepared.mesh, &[], &[], &pieces, cook)
-            })?;
+            });
             Some(selected).filter(|(_, chosen)| chosen.covered >= cook.surface_enough)
         }
     };
@@ -724,15 +725,23 @@ impl<'a> Run<'a> {
     /// stops the cook there.
     fn stage<T>(&mut self, stage: &str, work: impl FnOnce() -> T) -> Result<T, CookError> {
         self.start(stage)?;
-        let start = Instant::now();
-        let out = work();
-        self.timings.add(stage, start.elapsed().as_secs_f64() * 1e3);
+        let out = self.more_of(stage, work);
         match self.gpu.as_ref().map(|g| g.take_device_ms()) {
             Some(Ok(Some(ms))) if ms > 0.0 => self.device_timings.add(stage, ms),
             Some(Err(e)) => tracing::warn!(stage, "the device's pass times could not be read: {e}"),
             _ => {}
         }
         Ok(out)
+    }
+
+    /// Runs more of `stage`, which has started, timed as its own and named if it panics:
+    /// progress hears nothing, as it may have heard the stages after.
+    fn more_of<T>(&mut self, stage: &str, work: impl FnOnce() -> T) -> T {
+        mark_stage(stage);
+        let start = Instant::now();
+        let out = work();
+        self.timings.add(stage, start.elapsed().as_secs_f64() * 1e3);
+        out
     }
 
     /// Runs `main` and, on another thread meanwhile, `beside`: a CPU stage that needs nothing
@@ -1038,6 +1047,25 @@ mod tests {
         ];
         in_order(&stages, &order);
         assert!(r.timings_ms.get("patches") > 0.0, "{r:?}");
+    }
+
+    #[test]
+    fn an_open_mesh_whose_surface_pieces_alone_make_the_occluder_reports_its_stages_in_order() {
+        // A unit box without its top: five flat pieces, ten triangles.
+        let corner = |i: u32| glam::Vec3::new((i & 1) as f32, (i >> 1 & 1) as f32, (i >> 2 & 1) as f32);
+        let faces = [[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [0, 2, 3, 1], [4, 5, 7, 6]];
+        let open_box = Mesh {
+            positions: (0..8).map(corner).collect(),
+            triangles: faces.iter().flat_map(|&[a, b, c, d]| [[a, b, c], [a, c, d]]).collect(),
+        };
+        let (stages, r) = heard_stages(open_box);
+        assert!(
+            r.notes.iter().any(|n| n.contains("surface pieces alone")),
+            "{:?}",
+            r.notes
+        );
+        assert!(!stages.iter().any(|s| s == "surface"), "{stages:?}");
+        in_order(&stages, &["orient", "surface-pieces", "key", "silhouettes"]);
     }
 
     #[test]

@@ -149,19 +149,16 @@ pub fn cook_with_progress(
     // Low-poly and flat-shaded open art: its own surface may leave the voxel stages, and their
     // costly exposure test, nothing to add. A closed mesh has no exposure test, and its in-solid
     // quads sit behind its surface, where a runtime can cull what touches the wall's far side.
-    let alone = match silhouettes
+    let alone = silhouettes
         .as_ref()
         .filter(|_| could_be_enough(&pieces, cook.max_triangles))
-    {
-        None => None,
-        Some((found, _)) => {
+        .map(|(found, _)| {
             // Their selection, part of the surface pieces' stage: progress has heard the key.
-            let selected = run.more_of("surface-pieces", || {
+            run.more_of("surface-pieces", || {
                 select_pieces(found, &prepared.mesh, &[], &[], &pieces, cook)
-            });
-            Some(selected).filter(|(_, chosen)| chosen.covered >= cook.surface_enough)
-        }
-    };
+            })
+        })
+        .filter(|(_, chosen)| chosen.covered >= cook.surface_enough);
     match alone {
         Some((occluder, chosen)) => {
             if let Some((_, ms)) = silhouettes {

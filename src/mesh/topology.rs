@@ -136,18 +136,17 @@ struct EdgeUses {
 /// runs from the key's lower vertex and -1 where from its higher, and the triangle.
 type Use = ((u32, u32), i32, u32);
 
-/// Every edge use of `mesh`, in order of key.
+/// The use of triangle `t`'s edge from corner k to the next.
+fn edge_use(tri: &[u32; 3], k: usize, t: u32) -> Use {
+    let (a, b) = (tri[k], tri[(k + 1) % 3]);
+    if a < b { ((a, b), 1, t) } else { ((b, a), -1, t) }
+}
+
+/// Every edge use of `mesh`, in order of key: grouped by the key's lower vertex.
 fn directed_uses(mesh: &Mesh) -> Vec<Use> {
-    let uses = mesh.triangles.iter().zip(0..).flat_map(|(tri, t)| {
-        (0..3).map(move |k| {
-            let (a, b) = (tri[k], tri[(k + 1) % 3]);
-            if a < b {
-                (a, ((a, b), 1, t))
-            } else {
-                (b, ((b, a), -1, t))
-            }
-        })
-    });
+    let uses = (mesh.triangles.iter().zip(0..))
+        .flat_map(|(tri, t)| (0..3).map(move |k| edge_use(tri, k, t)))
+        .map(|edge| (edge.0.0, edge));
     sorted_by_vertex(mesh.positions.len(), uses)
 }
 
@@ -361,18 +360,8 @@ mod tests {
         };
         mesh.triangles.extend((5..30).map(|k| [k + 1, k, (k * 7) % 39 + 1]));
         mesh.triangles.extend([[3, 2, 0], [0, 2, 3], [0, 1, 2]]);
-        let mut plain: Vec<Use> = (0..mesh.triangles.len())
-            .flat_map(|t| {
-                let tri = mesh.triangles[t];
-                (0..3).map(move |k| {
-                    let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                    if a < b {
-                        ((a, b), 1, t as u32)
-                    } else {
-                        ((b, a), -1, t as u32)
-                    }
-                })
-            })
+        let mut plain: Vec<Use> = (mesh.triangles.iter().zip(0..))
+            .flat_map(|(tri, t)| (0..3).map(move |k| edge_use(tri, k, t)))
             .collect();
         plain.sort_unstable();
         assert_eq!(directed_uses(&mesh), plain);

@@ -165,16 +165,16 @@ impl Band {
     }
 }
 
-/// Draws the sky views into `out`, their images one after another: the mesh's triangles
-/// (`drawn`, on `gpu` when given) and those along a crack eroded. With `windows`, each image
-/// holds only its window (on the CPU, drawn from `meshlets`, `drawn`'s), and is 0 (hidden to
-/// every later test) outside it.
+/// Draws the sky views into `out`, their images one after another, and their tiles into
+/// `tiles` ([`Images`]): the mesh's triangles (`drawn`, on `gpu` when given) and those along a
+/// crack eroded. With `windows`, each image holds only its window (on the CPU, drawn from
+/// `meshlets`, `drawn`'s), and is 0 (hidden to every later test) outside it.
 fn draw_sky(
     sky: &[View],
     (drawn, split): (&Mesh, &CrackSplit),
     (windows, meshlets): (Option<&[Vec<bool>]>, &[Meshlet]),
     gpu: Option<&Gpu>,
-    out: &mut [f32],
+    (out, tiles): Images,
 ) -> Result<(), GpuError> {
     // Row by row, a tile's run of pixels at a time.
     let mask = |window: &[bool], image: &mut [f32]| {
@@ -185,7 +185,7 @@ fn draw_sky(
             }
         }
     };
-    let finish = |v: usize, view: &View, image: &mut [f32], out: &mut [f32]| {
+    let finish = |v: usize, view: &View, image: &mut [f32], (out, tiles): Images| {
         draw_eroded(view, &split.soup, &split.eroded, image);
         match windows {
             Some(windows) => {
@@ -194,8 +194,9 @@ fn draw_sky(
             }
             None => farthest_nearby(image, PIXELS, out),
         }
+        farthest_per_tile(out, PIXELS, tiles);
     };
-    let out = out.par_chunks_mut(PIXELS * PIXELS).zip(sky).enumerate();
+    let out = each_image(out, tiles).zip(sky).enumerate();
     match gpu {
         Some(gpu) => {
             let images = raster::depth_images(sky, drawn, Some(gpu))?;
@@ -214,6 +215,18 @@ fn draw_sky(
         ),
     }
     Ok(())
+}
+
+/// Views' images and the farthest depth of each of their tiles, one view after another: where
+/// an image is written, so that its tiles are found while it is in cache.
+type Images<'a> = (&'a mut [f32], &'a mut [f32]);
+
+/// Tiles a view.
+const TILES: usize = WindowTiles::ACROSS * WindowTiles::ACROSS;
+
+/// Each view's image and tiles.
+fn each_image<'a>(out: &'a mut [f32], tiles: &'a mut [f32]) -> impl IndexedParallelIterator<Item = Images<'a>> {
+    out.par_chunks_mut(PIXELS * PIXELS).zip(tiles.par_chunks_mut(TILES))
 }
 
 /// How far from a point, in pixels, lie the centres of the pixels whose depths decide whether
@@ -338,12 +351,13 @@ fn add_cube_maps(views: &mut Vec<View>, eyes: &[Camera], radius: f64) -> Vec<f64
 }
 
 /// Draws the cameras' views of `parts` (of the mesh in `sphere`) into `out`, each pixel the
-/// farthest depth of its neighbourhood.
-fn draw_eyes(eyes: &[View], horizons: &[f64], (parts, sphere): (&[Meshlet], (DVec3, f64)), out: &mut [f32]) {
-    let eyes = out.par_chunks_mut(PIXELS * PIXELS).zip(eyes).zip(horizons);
-    eyes.for_each_init(Vec::new, |image, ((out, view), &horizon)| {
+/// farthest depth of its neighbourhood, and their tiles ([`Images`]).
+fn draw_eyes(eyes: &[View], horizons: &[f64], (parts, sphere): (&[Meshlet], (DVec3, f64)), (out, tiles): Images) {
+    let eyes = each_image(out, tiles).zip(eyes).zip(horizons);
+    eyes.for_each_init(Vec::new, |image, (((out, tiles), view), &horizon)| {
         draw_depth_nearest_first(view, &may_hide_counted(parts, sphere, view, horizon), image);
         farthest_nearby(image, PIXELS, out);
+        farthest_per_tile(out, PIXELS, tiles);
     });
 }
 
@@ -401,7 +415,9 @@ impl OpenViews {
         // GPU takes them. On the CPU each view is drawn, eroded and filtered in turn through one
         // image a thread.
         let mut depths = depth_memory(views.len() * PIXELS * PIXELS);
+        let mut tiles = vec![0.0; views.len() * TILES];
         let (sky_depths, eye_depths) = depths.split_at_mut(sky_views * PIXELS * PIXELS);
+        let (sky_tiles, eye_tiles) = tiles.split_at_mut(sky_views * TILES);
         let (sky, eyes) = views.split_at(sky_views);
         // Triangles along a crack are drawn eroded on the CPU, over the rest.
         let drawn = split.uncracked.as_ref().unwrap_or(mesh);
@@ -423,9 +439,15 @@ impl OpenViews {
         let (sky_drawn, ()) = rayon::join(
             || {
                 let windows = banded.as_ref().map(|(_, windows)| windows.as_slice());
-                draw_sky(sky, (drawn, &split), (windows, &parts[..drawn_parts]), gpu, sky_depths)
+                draw_sky(
+                    sky,
+                    (drawn, &split),
+                    (windows, &parts[..drawn_parts]),
+                    gpu,
+                    (sky_depths, sky_tiles),
+                )
             },
-            || draw_eyes(eyes, &horizons, (&parts, (center, radius)), eye_depths),
+            || draw_eyes(eyes, &horizons, (&parts, (center, radius)), (eye_depths, eye_tiles)),
         );
         sky_drawn?;
         let mut open_views = OpenViews {
@@ -433,12 +455,11 @@ impl OpenViews {
             sky_views,
             horizons,
             depths,
-            tiles: Vec::new(),
+            tiles,
             pixel,
             cracks: cracked.values().flatten().filter(|&&e| e).count(),
             band: banded.map(|(band, _)| band),
         };
-        open_views.add_tiles(0);
         open_views.add_enclosed_eyes((&enclosed, &mouths), (&parts, (center, radius)));
         Ok(open_views)
     }
@@ -470,10 +491,13 @@ impl OpenViews {
         let first = self.views.len();
         self.horizons.extend(add_cube_maps(&mut self.views, &seen, sphere.1));
         self.depths.resize(self.views.len() * PIXELS * PIXELS, 0.0);
+        self.tiles.resize(self.views.len() * TILES, 0.0);
         let horizons = &self.horizons[first - self.sky_views..];
-        let out = &mut self.depths[first * PIXELS * PIXELS..];
+        let out = (
+            &mut self.depths[first * PIXELS * PIXELS..],
+            &mut self.tiles[first * TILES..],
+        );
         draw_eyes(&self.views[first..], horizons, (parts, sphere), out);
-        self.add_tiles(first);
     }
 
     /// Whether a view whose depth image sees `p` sees it along a line that meets no triangle of
@@ -486,16 +510,6 @@ impl OpenViews {
             let (towards, reach) = self.views[v].line_to_camera(p);
             !line_blocked(parts, p, towards, reach)
         })
-    }
-
-    /// The tiles of the views from `first` on ([`farthest_per_tile`]).
-    fn add_tiles(&mut self, first: usize) {
-        let tiles = WindowTiles::ACROSS.pow(2);
-        self.tiles.resize(self.views.len() * tiles, 0.0);
-        self.tiles[first * tiles..]
-            .par_chunks_mut(tiles)
-            .zip(self.depths[first * PIXELS * PIXELS..].par_chunks(PIXELS * PIXELS))
-            .for_each(|(out, depth)| farthest_per_tile(depth, PIXELS, out));
     }
 
     /// How many boundary edges run along a crack, where another part of the surface lies nearer
@@ -633,10 +647,10 @@ impl OpenViews {
     /// View `v`'s image (each pixel's farthest depth nearby) and the farthest depth of each of
     /// its tiles, a row after another.
     fn images(&self, v: usize) -> (&[f32], &[f32]) {
-        let (pixels, tiles) = (PIXELS * PIXELS, WindowTiles::ACROSS.pow(2));
+        let pixels = PIXELS * PIXELS;
         (
             &self.depths[v * pixels..(v + 1) * pixels],
-            &self.tiles[v * tiles..(v + 1) * tiles],
+            &self.tiles[v * TILES..(v + 1) * TILES],
         )
     }
 

@@ -44,7 +44,7 @@ use crate::voxel::winding::WindingField;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap, HashSet};
-use std::ops::RangeInclusive;
+use std::ops::{Range, RangeInclusive};
 use std::sync::{Mutex, PoisonError};
 
 /// Directions on the whole sphere; those not below the object are used.
@@ -574,15 +574,13 @@ impl OpenViews {
     }
 
     /// Of the `needed` grid corners (z fastest), those some view sees. The corners go in bricks
-    /// through a few views at a time, whose depths stay in cache (all views' together are far
-    /// larger than it); a view with the whole brick behind its depths skips it, and a brick
-    /// whose corners are all seen leaves the rest of the views.
+    /// through a few views at a time ([`OpenViews::view_blocks`]), whose depths stay in cache
+    /// (all views' together are far larger than it); a view with the whole brick behind its
+    /// depths skips it, and a brick whose corners are all seen leaves the rest of the views.
     fn seen_corners(&self, grid: &Grid, needed: &[bool]) -> Vec<bool> {
         let bricks = CornerBricks::new(grid, needed);
         let mut seen = vec![false; bricks.corners.len()];
-        let count = self.views.len();
-        for first in (0..count).step_by(VIEWS_TOGETHER) {
-            let block = first..(first + VIEWS_TOGETHER).min(count);
+        for block in self.view_blocks() {
             bricks
                 .split(&mut seen)
                 .into_par_iter()
@@ -604,6 +602,29 @@ impl OpenViews {
             all[c] = true;
         }
         all
+    }
+
+    /// The views in blocks of [`VIEWS_TOGETHER`], a block of sky views and a block of cameras in
+    /// turn. What one view sees is seen, so the order changes only the work: the inside of a
+    /// hollow part shows only to the cameras in its openings, the outside mostly to the sky
+    /// views, and taking their blocks in turn reaches either kind early (teapot's corners took
+    /// 717,485 tests sky views first and 342,787 in turn; 2cylinder-engine's 54,154 and 63,956).
+    fn view_blocks(&self) -> Vec<Range<usize>> {
+        let blocks = |views: Range<usize>| {
+            views
+                .clone()
+                .step_by(VIEWS_TOGETHER)
+                .map(move |first| first..(first + VIEWS_TOGETHER).min(views.end))
+        };
+        let (mut sky, mut cameras) = (blocks(0..self.sky_views), blocks(self.sky_views..self.views.len()));
+        let mut order = Vec::new();
+        loop {
+            let (a, b) = (sky.next(), cameras.next());
+            if a.is_none() && b.is_none() {
+                return order;
+            }
+            order.extend(a.into_iter().chain(b));
+        }
     }
 
     /// Whether view `v` sees no point of the box [lo, hi]: a camera in an opening, none where

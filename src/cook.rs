@@ -137,7 +137,7 @@ pub fn cook_with_progress(
     run.heard("key", key_ms)?;
     // A GPU asked for must be there, even where the surface alone makes the occluder.
     if cook.device == gpu::DeviceChoice::Gpu {
-        run.open_device(cook.device)?;
+        run.open_device(cook.device, 0, false)?;
     }
     let prepared = Prepared {
         mesh,
@@ -240,8 +240,8 @@ fn cook_voxels(
     let cook = &settings.cook;
     let uses = |shape: Shape| cook.shapes.contains(&shape);
     let (mesh, topology) = (&prepared.mesh, &prepared.topology);
-    run.open_device(cook.device)?;
     let grid = fit_grid(mesh, cook.resolution);
+    run.open_device(cook.device, grid.len(), !topology.boundary.is_empty())?;
     // Stages that need nothing the voxel stages make are found beside them: the quads of a
     // closed mesh, which its own crossings decide, and an open mesh's patches.
     let (voxels, quads_found, patches_found) = match closed_solid(topology, cook).filter(|_| uses(Shape::Quads)) {
@@ -799,15 +799,16 @@ impl<'a> Run<'a> {
         Ok(out?)
     }
 
-    /// Opens the device `choice` asks for (once a process) and builds the pipelines of the
-    /// stages a cook runs there.
-    fn open_device(&mut self, choice: gpu::DeviceChoice) -> Result<(), CookError> {
+    /// Opens the device `choice` asks for a grid of `voxels`, of a mesh with openings when
+    /// `open` ([`gpu::for_cook`]; once a process), and builds the pipelines of the stages a cook
+    /// runs there.
+    fn open_device(&mut self, choice: gpu::DeviceChoice, voxels: usize, open: bool) -> Result<(), CookError> {
         if self.device_chosen {
             return Ok(());
         }
         self.device_chosen = true;
         let placement = self.stage("device", || {
-            let placement = gpu::for_choice(choice)?;
+            let placement = gpu::for_cook(choice, voxels, open)?;
             if let Some(gpu) = &placement.gpu {
                 gpu.build_pipelines(&PIPELINES.concat())?;
             }

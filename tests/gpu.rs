@@ -195,10 +195,12 @@ fn grids_larger_than_a_binding_are_done_in_slabs() {
     assert_eq!(sliced, surface::voxelize(&mesh, &grid));
 }
 
-/// Runs the binary with the Vulkan loader pointed at no driver at all.
+/// Runs the binary on one thread (so that `auto` sizes grids against one) with the Vulkan
+/// loader pointed at no driver at all.
 fn cook_without_adapter(args: &[&str]) -> (i32, String) {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_occluder-cook"))
         .args(args)
+        .env("RAYON_NUM_THREADS", "1")
         .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
         .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
         .output()
@@ -209,36 +211,65 @@ fn cook_without_adapter(args: &[&str]) -> (i32, String) {
     )
 }
 
+fn write_obj(path: &std::path::Path, mesh: &Mesh) {
+    let mut obj = String::new();
+    for p in &mesh.positions {
+        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &mesh.triangles {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, obj).unwrap();
+}
+
 #[test]
 fn device_gpu_without_an_adapter_fails_clearly_and_auto_falls_back_to_the_cpu() {
     let dir = std::env::temp_dir().join(format!("occluder-cook-noadapter-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mesh = dir.join("box.obj");
-    let cube = cuboid(Vec3::ZERO, Vec3::ONE, &[]);
-    let mut obj = String::new();
-    for p in &cube.positions {
-        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &cube.triangles {
-        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(&mesh, obj).unwrap();
-    let (mesh, out, report) = (mesh.to_str().unwrap(), dir.join("o.glb"), dir.join("r.json"));
+    let (closed, open) = (dir.join("box.obj"), dir.join("open-box.obj"));
+    write_obj(&closed, &cuboid(Vec3::ZERO, Vec3::ONE, &[]));
+    write_obj(&open, &cuboid(Vec3::ZERO, Vec3::ONE, &[3]));
+    let (closed, open) = (closed.to_str().unwrap(), open.to_str().unwrap());
+    let (out, report) = (dir.join("o.glb"), dir.join("r.json"));
     let (out, report) = (out.to_str().unwrap(), report.to_str().unwrap());
 
-    let (code, stderr) = cook_without_adapter(&["cook", mesh, "-o", out, "--device", "gpu"]);
+    let (code, stderr) = cook_without_adapter(&["cook", closed, "-o", out, "--device", "gpu"]);
     assert_eq!(code, 1, "{stderr}");
     assert!(stderr.contains("no GPU adapter"), "{stderr}");
     assert_eq!(stderr.trim().lines().count(), 1, "one line: {stderr}");
 
-    // Boxes only: the cube's own faces would cover it without the voxel stages, and no device.
-    let boxes = r#"cook.shapes=["boxes"]"#;
-    let (code, stderr) = cook_without_adapter(&["cook", mesh, "-o", out, "--report", report, "--set", boxes]);
-    assert_eq!(code, 0, "{stderr}");
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(report).unwrap()).unwrap();
-    assert_eq!(report["device"], "cpu");
-    assert!(report["notes"].to_string().contains("found no GPU adapter"), "{report}");
+    // Boxes only: the box's own faces would cover it without the voxel stages, and no device.
+    let cook = |mesh: &str, resolution: &str| {
+        let boxes = r#"cook.shapes=["boxes"]"#;
+        let args = [
+            "cook",
+            mesh,
+            "-o",
+            out,
+            "--report",
+            report,
+            "--resolution",
+            resolution,
+            "--set",
+            boxes,
+        ];
+        let (code, stderr) = cook_without_adapter(&args);
+        assert_eq!(code, 0, "{stderr}");
+        let report: serde_json::Value = serde_json::from_slice(&std::fs::read(report).unwrap()).unwrap();
+        assert_eq!(report["device"], "cpu");
+        report
+    };
+    // A grid too small to pay for opening a GPU stays on the CPU without looking for one.
+    let report = cook(closed, "64");
+    let notes = report["notes"].to_string();
+    assert!(
+        notes.contains("device=auto ran this cook on the CPU") && !notes.contains("adapter"),
+        "{notes}"
+    );
     assert!(report["occluder"]["triangles"].as_u64().unwrap() > 0);
+    // An open mesh's grid of 96³ voxels would pay on one thread: auto looks, finds none, and says so.
+    let notes = cook(open, "96")["notes"].to_string();
+    assert!(notes.contains("found no GPU adapter"), "{notes}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

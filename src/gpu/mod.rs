@@ -98,6 +98,43 @@ pub struct Placement {
     pub why_cpu: Option<String>,
 }
 
+/// Voxels a CPU thread from which a cook's GPU stages save more than opening a device costs
+/// (about 250 ms a process on an H200, of 16 threads). There an open mesh's stages, the exposure
+/// test's among them, saved 357 ms at 13.3 million voxels (bunny-holes at 256³) and 86 ms at 5.4
+/// million (teapot); a closed mesh's, surface and inside alone, 15 ms at 9.4 million (spot).
+const OPENING_PAYS_AT_VOXELS_A_THREAD: usize = 500_000;
+const OPENING_PAYS_AT_CLOSED_VOXELS_A_THREAD: usize = 8_000_000;
+
+/// The device for a cook of a grid of `voxels`, of a mesh with openings when `open`, under
+/// `choice`. Under `auto`, a process that has no device open yet (a one-shot `cook`) runs a grid
+/// too small for the GPU to pay for its opening on the CPU, without looking for an adapter; a
+/// process that cooks many meshes opens it first ([`for_choice`]), so every cook of its uses it.
+pub fn for_cook(choice: DeviceChoice, voxels: usize, open: bool) -> Result<Placement, GpuError> {
+    let threads = rayon::current_num_threads();
+    let pays_at = threads
+        * match open {
+            true => OPENING_PAYS_AT_VOXELS_A_THREAD,
+            false => OPENING_PAYS_AT_CLOSED_VOXELS_A_THREAD,
+        };
+    if choice == DeviceChoice::Auto && voxels < pays_at && !is_open() {
+        let mesh = if open { "mesh with openings" } else { "closed mesh" };
+        return Ok(Placement {
+            gpu: None,
+            why_cpu: Some(format!(
+                "device=auto ran this cook on the CPU: on {threads} threads the {voxels} voxels of a {mesh} take \
+                 less time there than opening a GPU, which pays from {pays_at} voxels or once a process has one open"
+            )),
+        });
+    }
+    for_choice(choice)
+}
+
+/// Whether this process has a device open.
+fn is_open() -> bool {
+    let slot = DEVICE.lock().unwrap_or_else(|e| e.into_inner());
+    slot.as_ref().is_some_and(|g| !g.lost.load(Ordering::Acquire))
+}
+
 /// The device for `choice`. `auto` takes a hardware adapter only: on a software one (lavapipe)
 /// the CPU stages measured faster (README, "GPU"), so `gpu` must ask for it.
 pub fn for_choice(choice: DeviceChoice) -> Result<Placement, GpuError> {
@@ -140,10 +177,17 @@ fn rank(kind: wgpu::DeviceType) -> u8 {
     }
 }
 
+/// The process's wgpu instance. Making one loads the drivers, 80–95 ms a time on an H200's, so
+/// looking for an adapter and opening it share one; the adapters are found afresh for each
+/// device, as an adapter opens one device.
+fn instance() -> &'static wgpu::Instance {
+    static INSTANCE: std::sync::OnceLock<wgpu::Instance> = std::sync::OnceLock::new();
+    INSTANCE.get_or_init(|| wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env()))
+}
+
 /// The preferred adapter: hardware first, lavapipe last.
 fn best_adapter() -> Option<wgpu::Adapter> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+    let adapters = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::all()));
     adapters.into_iter().min_by_key(|a| rank(a.get_info().device_type))
 }
 

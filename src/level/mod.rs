@@ -304,6 +304,12 @@ pub async fn bake(
     progress(cache_hits, unique.len());
 
     let cooking = Instant::now();
+    // Opened before the cooks, which run at once, so that each runs where it would alone in a
+    // process that has it open ([`crate::gpu::for_cook`]); the cull test uses it after. A
+    // failure to open is each cook's to report.
+    if !misses.is_empty() {
+        crate::gpu::for_choice(settings.cook.device).ok();
+    }
     let done = std::sync::atomic::AtomicUsize::new(cache_hits);
     let cooked: Vec<_> = misses
         .into_par_iter()

@@ -1070,6 +1070,16 @@ enum Ran {
 /// Runs `workers` tasks that take jobs from the store's queue until `stop` turns true; each
 /// finishes the job in hand first. Jobs still queued stay on the queue.
 pub async fn run_workers(service: Arc<Service>, workers: usize, stop: watch::Receiver<bool>) {
+    // Under auto a cook opens the GPU only where its grid pays for the opening, unless the
+    // process has it open: the pool opens it first, so that every job runs where it pays.
+    let device = service.settings.cook.device;
+    if device != crate::gpu::DeviceChoice::Cpu {
+        match tokio::task::spawn_blocking(move || crate::gpu::for_choice(device)).await {
+            Ok(Ok(placement)) => placement.why_cpu.iter().for_each(|why| tracing::info!("{why}")),
+            Ok(Err(e)) => tracing::warn!(error = %e, "no GPU for the workers"),
+            Err(e) => tracing::warn!(error = %e, "opening the GPU stopped"),
+        }
+    }
     service.workers.fetch_add(workers, std::sync::atomic::Ordering::Relaxed);
     service.update_gauges().await;
     let tasks: Vec<_> = (0..workers)

@@ -137,7 +137,7 @@ pub fn cook_with_progress(
     run.heard("key", key_ms)?;
     // A GPU asked for must be there, even where the surface alone makes the occluder.
     if cook.device == gpu::DeviceChoice::Gpu {
-        run.open_device(cook.device, 0, false)?;
+        run.open_device(cook.device, None)?;
     }
     let prepared = Prepared {
         mesh,
@@ -241,7 +241,12 @@ fn cook_voxels(
     let uses = |shape: Shape| cook.shapes.contains(&shape);
     let (mesh, topology) = (&prepared.mesh, &prepared.topology);
     let grid = fit_grid(mesh, cook.resolution);
-    run.open_device(cook.device, grid.len(), !topology.boundary.is_empty())?;
+    let size = gpu::CookSize {
+        voxels: grid.len(),
+        triangles: mesh.triangles.len(),
+        open: !topology.boundary.is_empty(),
+    };
+    run.open_device(cook.device, Some(size))?;
     // Stages that need nothing the voxel stages make are found beside them: the quads of a
     // closed mesh, which its own crossings decide, and an open mesh's patches.
     let (voxels, quads_found, patches_found) = match closed_solid(topology, cook).filter(|_| uses(Shape::Quads)) {
@@ -799,16 +804,18 @@ impl<'a> Run<'a> {
         Ok(out?)
     }
 
-    /// Opens the device `choice` asks for a grid of `voxels`, of a mesh with openings when
-    /// `open` ([`gpu::for_cook`]; once a process), and builds the pipelines of the stages a cook
-    /// runs there.
-    fn open_device(&mut self, choice: gpu::DeviceChoice, voxels: usize, open: bool) -> Result<(), CookError> {
+    /// Opens the device `choice` asks for, for a cook of `size` where given ([`gpu::for_cook`]);
+    /// once a process. Builds the pipelines of the stages a cook runs there.
+    fn open_device(&mut self, choice: gpu::DeviceChoice, size: Option<gpu::CookSize>) -> Result<(), CookError> {
         if self.device_chosen {
             return Ok(());
         }
         self.device_chosen = true;
         let placement = self.stage("device", || {
-            let placement = gpu::for_cook(choice, voxels, open)?;
+            let placement = match size {
+                Some(size) => gpu::for_cook(choice, size)?,
+                None => gpu::for_choice(choice)?,
+            };
             if let Some(gpu) = &placement.gpu {
                 gpu.build_pipelines(&PIPELINES.concat())?;
             }

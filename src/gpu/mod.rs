@@ -98,31 +98,56 @@ pub struct Placement {
     pub why_cpu: Option<String>,
 }
 
-/// Voxels a CPU thread from which a cook's GPU stages save more than opening a device costs
-/// (about 250 ms a process on an H200, of 16 threads). There an open mesh's stages, the exposure
-/// test's among them, saved 357 ms at 13.3 million voxels (bunny-holes at 256³) and 86 ms at 5.4
-/// million (teapot); a closed mesh's, surface and inside alone, 15 ms at 9.4 million (spot).
-const OPENING_PAYS_AT_VOXELS_A_THREAD: usize = 500_000;
-const OPENING_PAYS_AT_CLOSED_VOXELS_A_THREAD: usize = 8_000_000;
+/// A CPU thread's share of the work from which a cook's GPU stages save more than opening a
+/// device costs, about 250 ms a process on an H200 host of 16 threads (157–191 ms to open, and
+/// the first passes). There a mesh with openings saved 357 ms at 13.3 million voxels
+/// (bunny-holes at 256³), 180 ms at 5.7 million (at 192³) and 86 ms at 5.4 million (teapot at
+/// 256³); 2cylinder-engine's exposure depth images saved about 50 ms for its 110,336 triangles at
+/// any grid. A closed mesh, with surface and inside alone on the GPU, saved 15 ms at 9.4 million
+/// voxels (spot at 256³).
+const OPEN_VOXELS_A_THREAD: f64 = 500_000.0;
+const OPEN_TRIANGLES_A_THREAD: f64 = 35_000.0;
+const CLOSED_VOXELS_A_THREAD: f64 = 8_000_000.0;
 
-/// The device for a cook of a grid of `voxels`, of a mesh with openings when `open`, under
-/// `choice`. Under `auto`, a process that has no device open yet (a one-shot `cook`) runs a grid
-/// too small for the GPU to pay for its opening on the CPU, without looking for an adapter; a
-/// process that cooks many meshes opens it first ([`for_choice`]), so every cook of its uses it.
-pub fn for_cook(choice: DeviceChoice, voxels: usize, open: bool) -> Result<Placement, GpuError> {
-    let threads = rayon::current_num_threads();
-    let pays_at = threads
-        * match open {
-            true => OPENING_PAYS_AT_VOXELS_A_THREAD,
-            false => OPENING_PAYS_AT_CLOSED_VOXELS_A_THREAD,
+/// What a cook's GPU stages work on.
+#[derive(Clone, Copy, Debug)]
+pub struct CookSize {
+    pub voxels: usize,
+    pub triangles: usize,
+    /// Whether the mesh has openings: only then do the exposure stages, which also grow with
+    /// the triangles, run.
+    pub open: bool,
+}
+
+impl CookSize {
+    /// Whether its GPU stages save more than opening a device costs, against `threads` CPU
+    /// threads.
+    fn pays_for_opening(&self, threads: usize) -> bool {
+        let shares = match self.open {
+            true => self.voxels as f64 / OPEN_VOXELS_A_THREAD + self.triangles as f64 / OPEN_TRIANGLES_A_THREAD,
+            false => self.voxels as f64 / CLOSED_VOXELS_A_THREAD,
         };
-    if choice == DeviceChoice::Auto && voxels < pays_at && !is_open() {
-        let mesh = if open { "mesh with openings" } else { "closed mesh" };
+        shares >= threads as f64
+    }
+}
+
+/// The device for a cook of `size` under `choice`. Under `auto`, a process that has no device
+/// open yet (a one-shot `cook`) runs a cook too small for the GPU to pay for its opening on the
+/// CPU, without looking for an adapter; a process that cooks many meshes opens it first
+/// ([`for_choice`]), so every cook of its uses it.
+pub fn for_cook(choice: DeviceChoice, size: CookSize) -> Result<Placement, GpuError> {
+    let threads = rayon::current_num_threads();
+    if choice == DeviceChoice::Auto && !size.pays_for_opening(threads) && !is_open() {
+        let CookSize { voxels, triangles, .. } = size;
+        let mesh = match size.open {
+            true => "a mesh with openings",
+            false => "a closed mesh",
+        };
         return Ok(Placement {
             gpu: None,
             why_cpu: Some(format!(
-                "device=auto ran this cook on the CPU: on {threads} threads the {voxels} voxels of a {mesh} take \
-                 less time there than opening a GPU, which pays from {pays_at} voxels or once a process has one open"
+                "device=auto ran this cook on the CPU: on {threads} threads, {voxels} voxels of {mesh} of {triangles} \
+                 triangles take less time there than opening a GPU (README, GPU); a process with one open uses it"
             )),
         });
     }
@@ -777,6 +802,31 @@ impl Gpu {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn opening_a_device_pays_for_the_cooks_it_paid_for_on_an_h200() {
+        let size = |voxels: f64, triangles, open| CookSize {
+            voxels: (voxels * 1e6) as usize,
+            triangles,
+            open,
+        };
+        // The H200 host's 16 threads: the sizes of the measurements behind the shares.
+        let paid = [
+            (size(13.28, 69_451, true), true),
+            (size(5.65, 69_451, true), false),
+            (size(5.35, 6_320, true), false),
+            (size(2.38, 110_336, true), false),
+            (size(0.16, 5_856, false), false),
+            (size(9.37, 5_856, false), false),
+        ];
+        for (cook, pays) in paid {
+            assert_eq!(cook.pays_for_opening(16), pays, "{cook:?}");
+        }
+        // Fewer threads take longer over the same work: the GPU pays sooner.
+        assert!(size(5.65, 69_451, true).pays_for_opening(8));
+        assert!(size(1.0, 40_000, true).pays_for_opening(2));
+        assert!(!size(1.0, 40_000, false).pays_for_opening(2));
+    }
 
     #[test]
     fn only_a_handle_placing_by_cost_leaves_work_the_cpu_threads_share_quickly_to_them() {

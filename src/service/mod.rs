@@ -1070,8 +1070,8 @@ enum Ran {
 /// Runs `workers` tasks that take jobs from the store's queue until `stop` turns true; each
 /// finishes the job in hand first. Jobs still queued stay on the queue.
 pub async fn run_workers(service: Arc<Service>, workers: usize, stop: watch::Receiver<bool>) {
-    // Under auto a cook opens the GPU only where its grid pays for the opening, unless the
-    // process has it open: the pool opens it first, so that every job runs where it pays.
+    // Under auto a cook opens the GPU only where it pays for the opening, unless the process
+    // has it open: the pool opens it first, so that every job runs where it pays.
     let device = service.settings.cook.device;
     if device != crate::gpu::DeviceChoice::Cpu {
         match tokio::task::spawn_blocking(move || crate::gpu::for_choice(device)).await {

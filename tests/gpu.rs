@@ -211,24 +211,13 @@ fn cook_without_adapter(args: &[&str]) -> (i32, String) {
     )
 }
 
-fn write_obj(path: &std::path::Path, mesh: &Mesh) {
-    let mut obj = String::new();
-    for p in &mesh.positions {
-        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &mesh.triangles {
-        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(path, obj).unwrap();
-}
-
 #[test]
 fn device_gpu_without_an_adapter_fails_clearly_and_auto_falls_back_to_the_cpu() {
     let dir = std::env::temp_dir().join(format!("occluder-cook-noadapter-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (closed, open) = (dir.join("box.obj"), dir.join("open-box.obj"));
-    write_obj(&closed, &cuboid(Vec3::ZERO, Vec3::ONE, &[]));
-    write_obj(&open, &cuboid(Vec3::ZERO, Vec3::ONE, &[3]));
+    std::fs::write(&closed, common::http::obj_text(&cuboid(Vec3::ZERO, Vec3::ONE, &[]))).unwrap();
+    std::fs::write(&open, common::http::obj_text(&cuboid(Vec3::ZERO, Vec3::ONE, &[3]))).unwrap();
     let (closed, open) = (closed.to_str().unwrap(), open.to_str().unwrap());
     let (out, report) = (dir.join("o.glb"), dir.join("r.json"));
     let (out, report) = (out.to_str().unwrap(), report.to_str().unwrap());

@@ -64,10 +64,15 @@ pub struct Gpu {
 
 static DEVICE: Mutex<Option<Arc<Gpu>>> = Mutex::new(None);
 
+/// The device `slot` holds, unless it was lost.
+fn held(slot: &Option<Arc<Gpu>>) -> Option<&Arc<Gpu>> {
+    slot.as_ref().filter(|g| !g.lost.load(Ordering::Acquire))
+}
+
 /// The process's device, opened on first use and again after a loss.
 pub fn device() -> Result<Arc<Gpu>, GpuError> {
     let mut slot = DEVICE.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(gpu) = slot.as_ref().filter(|g| !g.lost.load(Ordering::Acquire)) {
+    if let Some(gpu) = held(&slot) {
         return Ok(gpu.clone());
     }
     let gpu = Arc::new(open()?);
@@ -156,8 +161,7 @@ pub fn for_cook(choice: DeviceChoice, size: CookSize) -> Result<Placement, GpuEr
 
 /// Whether this process has a device open.
 fn is_open() -> bool {
-    let slot = DEVICE.lock().unwrap_or_else(|e| e.into_inner());
-    slot.as_ref().is_some_and(|g| !g.lost.load(Ordering::Acquire))
+    held(&DEVICE.lock().unwrap_or_else(|e| e.into_inner())).is_some()
 }
 
 /// The device for `choice`. `auto` takes a hardware adapter only: on a software one (lavapipe)

@@ -51,6 +51,7 @@ fn pop_row(
     best: &mut Option<CellRect>,
 ) {
     let nv = heights.len();
+    let mut best_cells = best.map_or(0, |b| b.cells());
     stack.clear();
     // The first column after the last one too low; where a rectangle with nothing left of it
     // on the stack begins. While the stack is empty it is `v`.
@@ -71,13 +72,13 @@ fn pop_row(
             stack.pop();
             let left = stack.last().map_or(floor, |&s| s + 1);
             let height = heights[top] as usize;
-            let rect = CellRect {
-                u: [u + 1 - height, u + 1],
-                v: [left, v],
-            };
             // Every rectangle lies in one of these maximal ones, with sides at least as long.
-            if v - left >= min_side && best.is_none_or(|b| rect.cells() > b.cells()) {
-                *best = Some(rect);
+            if v - left >= min_side && height * (v - left) > best_cells {
+                best_cells = height * (v - left);
+                *best = Some(CellRect {
+                    u: [u + 1 - height, u + 1],
+                    v: [left, v],
+                });
             }
         }
         if h == 0 {

@@ -72,9 +72,10 @@ fn pop_row(
             stack.pop();
             let left = stack.last().map_or(floor, |&s| s + 1);
             let height = heights[top] as usize;
+            let cells = height * (v - left);
             // Every rectangle lies in one of these maximal ones, with sides at least as long.
-            if v - left >= min_side && height * (v - left) > best_cells {
-                best_cells = height * (v - left);
+            if v - left >= min_side && cells > best_cells {
+                best_cells = cells;
                 *best = Some(CellRect {
                     u: [u + 1 - height, u + 1],
                     v: [left, v],

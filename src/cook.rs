@@ -127,7 +127,8 @@ pub fn cook_with_progress(
             let pieces = match topology.boundary.is_empty() {
                 true => (find_pieces(run)?, None),
                 false => {
-                    let (pieces, found) = run.beside(|| Silhouettes::new(&mesh), find_pieces)?;
+                    let (pieces, found) =
+                        run.beside(|| Silhouettes::new(&mesh, &topology.open_triangles), find_pieces)?;
                     (pieces, Some(found))
                 }
             };
@@ -381,7 +382,7 @@ fn voxel_stages(
             run.heard("silhouettes", ms)?;
             found
         }
-        None => run.stage("silhouettes", || Silhouettes::new(mesh))?,
+        None => run.stage("silhouettes", || Silhouettes::new(mesh, &topology.open_triangles))?,
     };
     Ok(VoxelStages {
         surface,

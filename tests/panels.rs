@@ -111,8 +111,8 @@ fn doorway_stays_open() {
     // uncovered, while most of the wall is covered.
     let (center, radius) = wall.bounding_sphere();
     let view = View::new(DVec3::Z, center, radius, 256);
-    let original = coverage_mask(&view, &wall);
-    let occluder = coverage_mask(&view, &cooked.occluder.mesh());
+    let original = coverage_mask(&view, &wall, None);
+    let occluder = coverage_mask(&view, &cooked.occluder.mesh(), None);
     let lo = view.project(DVec3::new(-0.5, 0.0, 0.0));
     let hi = view.project(DVec3::new(0.5, 2.0, 0.0));
     let bit = |mask: &[u64], i: usize| mask[i / 64] >> (i % 64) & 1 == 1;

@@ -128,6 +128,16 @@ struct Bits<'a> {
     end: usize,
 }
 
+impl Bits<'_> {
+    fn new(mask: &mut [u64]) -> Bits<'_> {
+        Bits {
+            mask,
+            first: usize::MAX,
+            end: 0,
+        }
+    }
+}
+
 impl Pixels for Bits<'_> {
     const RUNS: bool = true;
 
@@ -924,21 +934,33 @@ pub fn depth_images(views: &[View], mesh: &Mesh, gpu: Option<&Gpu>) -> Result<Ve
     }
 }
 
-/// A coverage bitmask, one bit per pixel.
-pub fn coverage_mask(view: &View, mesh: &Mesh) -> Vec<u64> {
+/// A coverage bitmask, one bit per pixel. Of the triangles that `closed` marks, those on closed
+/// parts of the surface (each edge used as often one way as the other), only the ones whose
+/// corners turn anticlockwise on the screen are drawn: a line through a closed part crosses as
+/// many of its triangles facing one way as the other, so those cover all it does. None where no
+/// triangle is on a closed part.
+pub fn coverage_mask(view: &View, mesh: &Mesh, closed: Option<&[bool]>) -> Vec<u64> {
     let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
-    draw_coverage(view, mesh, &mut mask);
+    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
+    let (all, bits) = (0..mesh.triangles.len(), &mut Bits::new(&mut mask));
+    match closed {
+        None => fill_triangles(view, (mesh, &projected), all, |_| [false; 3], bits),
+        Some(closed) => {
+            let anticlockwise = |t: usize| {
+                let q = mesh.triangles[t].map(|i| projected[i as usize].truncate());
+                cross(q[1] - q[0], q[2] - q[0]) > 0.0
+            };
+            let drawn = all.filter(|&t| !closed[t] || anticlockwise(t));
+            fill_triangles(view, (mesh, &projected), drawn, |_| [false; 3], bits);
+        }
+    }
     mask
 }
 
 /// Sets the bits of `mask` (one bit per pixel) for the pixels `mesh` covers; returns the words
 /// drawn, from the first to one past the last (empty when none).
 pub fn draw_coverage(view: &View, mesh: &Mesh, mask: &mut [u64]) -> std::ops::Range<usize> {
-    let mut bits = Bits {
-        mask,
-        first: usize::MAX,
-        end: 0,
-    };
+    let mut bits = Bits::new(mask);
     fill_mesh(view, mesh, |_| [false; 3], &mut bits);
     bits.first.min(bits.end)..bits.end
 }
@@ -1197,7 +1219,7 @@ mod tests {
             View::cube_map(DVec3::new(0.01, 0.02, -0.03), 70, 1e-3).swap_remove(2),
         ];
         for view in views {
-            let mut by_runs = coverage_mask(&view, &mesh);
+            let mut by_runs = coverage_mask(&view, &mesh, None);
             let mut one_by_one = vec![0u64; by_runs.len()];
             rasterize_mesh(&view, &mesh, |i, _| one_by_one[i / 64] |= 1 << (i % 64));
             assert_eq!(by_runs, one_by_one);
@@ -1209,6 +1231,36 @@ mod tests {
             assert_eq!(drawn, first..last + 1);
         }
         assert!(set > 2000, "{set} pixels");
+    }
+
+    #[test]
+    fn a_closed_part_drawn_from_its_triangles_facing_one_way_covers_what_all_of_them_do() {
+        // Two tori through each other, the second turned inside out, and open triangles across.
+        let mut mesh = crate::mesh::shapes::torus(1.0, 0.4, 24, 12);
+        let mut inverted = crate::mesh::shapes::torus(0.8, 0.3, 20, 10);
+        for p in &mut inverted.positions {
+            *p = glam::Vec3::new(p.x + 0.6, p.z, -p.y);
+        }
+        for tri in &mut inverted.triangles {
+            tri.swap(1, 2);
+        }
+        mesh.append(&inverted);
+        let closed_parts = mesh.triangles.len();
+        mesh.append(&random_triangles(5, 30, [0.5, 1.0, 2.0]));
+        let closed: Vec<bool> = (0..mesh.triangles.len()).map(|t| t < closed_parts).collect();
+        let (mut set, mut open_left_out) = (0, 0);
+        for d in crate::geom::camera::fibonacci_sphere(24) {
+            let view = View::new(d, DVec3::ZERO, 2.0, 96);
+            let all = coverage_mask(&view, &mesh, None);
+            assert_eq!(coverage_mask(&view, &mesh, Some(&closed)), all);
+            set += all.iter().map(|w| w.count_ones()).sum::<u32>();
+            // Taken for closed, the open triangles facing the other way go missing.
+            open_left_out += usize::from(coverage_mask(&view, &mesh, Some(&vec![true; closed.len()])) != all);
+        }
+        assert!(
+            set > 24 * 2000 && open_left_out > 12,
+            "{set} pixels, {open_left_out} views"
+        );
     }
 
     #[test]

@@ -47,13 +47,16 @@ pub struct Silhouettes {
 }
 
 impl Silhouettes {
-    pub fn new(mesh: &Mesh) -> Silhouettes {
+    /// `open_triangles` marks the triangles of parts of the surface with an open boundary.
+    pub fn new(mesh: &Mesh, open_triangles: &[bool]) -> Silhouettes {
         let (center, radius) = mesh.bounding_sphere();
         let views: Vec<View> = fibonacci_sphere(VIEWS)
             .into_iter()
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
-        let masks: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh)).collect();
+        let closed: Vec<bool> = open_triangles.iter().map(|open| !open).collect();
+        let closed = closed.contains(&true).then_some(closed.as_slice());
+        let masks: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh, closed)).collect();
         let pixels = masks.iter().flatten().map(|w| u64::from(w.count_ones())).sum();
         Silhouettes { views, masks, pixels }
     }

@@ -934,23 +934,23 @@ pub fn depth_images(views: &[View], mesh: &Mesh, gpu: Option<&Gpu>) -> Result<Ve
     }
 }
 
-/// A coverage bitmask, one bit per pixel. Of the triangles that `closed` marks, those on closed
-/// parts of the surface (each edge used as often one way as the other), only the ones whose
-/// corners turn anticlockwise on the screen are drawn: a line through a closed part crosses as
-/// many of its triangles facing one way as the other, so those cover all it does. None where no
-/// triangle is on a closed part.
-pub fn coverage_mask(view: &View, mesh: &Mesh, closed: Option<&[bool]>) -> Vec<u64> {
+/// A coverage bitmask, one bit per pixel. `open` marks the triangles of parts of the surface
+/// with an open boundary; None where every part has one. Of the others, on closed parts (each
+/// edge used as often one way as the other), only those whose corners turn anticlockwise on the
+/// screen are drawn: a line through a closed part crosses as many of its triangles facing one
+/// way as the other, so those cover all it does.
+pub fn coverage_mask(view: &View, mesh: &Mesh, open: Option<&[bool]>) -> Vec<u64> {
     let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
-    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
-    let (all, bits) = (0..mesh.triangles.len(), &mut Bits::new(&mut mask));
-    match closed {
-        None => fill_triangles(view, (mesh, &projected), all, |_| [false; 3], bits),
-        Some(closed) => {
+    let bits = &mut Bits::new(&mut mask);
+    match open {
+        None => fill_mesh(view, mesh, |_| [false; 3], bits),
+        Some(open) => {
+            let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
             let anticlockwise = |t: usize| {
                 let q = mesh.triangles[t].map(|i| projected[i as usize].truncate());
                 cross(q[1] - q[0], q[2] - q[0]) > 0.0
             };
-            let drawn = all.filter(|&t| !closed[t] || anticlockwise(t));
+            let drawn = (0..mesh.triangles.len()).filter(|&t| open[t] || anticlockwise(t));
             fill_triangles(view, (mesh, &projected), drawn, |_| [false; 3], bits);
         }
     }
@@ -1247,15 +1247,15 @@ mod tests {
         mesh.append(&inverted);
         let closed_parts = mesh.triangles.len();
         mesh.append(&random_triangles(5, 30, [0.5, 1.0, 2.0]));
-        let closed: Vec<bool> = (0..mesh.triangles.len()).map(|t| t < closed_parts).collect();
+        let open: Vec<bool> = (0..mesh.triangles.len()).map(|t| t >= closed_parts).collect();
         let (mut set, mut open_left_out) = (0, 0);
         for d in crate::geom::camera::fibonacci_sphere(24) {
             let view = View::new(d, DVec3::ZERO, 2.0, 96);
             let all = coverage_mask(&view, &mesh, None);
-            assert_eq!(coverage_mask(&view, &mesh, Some(&closed)), all);
+            assert_eq!(coverage_mask(&view, &mesh, Some(&open)), all);
             set += all.iter().map(|w| w.count_ones()).sum::<u32>();
             // Taken for closed, the open triangles facing the other way go missing.
-            open_left_out += usize::from(coverage_mask(&view, &mesh, Some(&vec![true; closed.len()])) != all);
+            open_left_out += usize::from(coverage_mask(&view, &mesh, Some(&vec![false; open.len()])) != all);
         }
         assert!(
             set > 24 * 2000 && open_left_out > 12,

@@ -54,9 +54,8 @@ impl Silhouettes {
             .into_iter()
             .map(|d| View::new(d, center, radius, PIXELS))
             .collect();
-        let closed: Vec<bool> = open_triangles.iter().map(|open| !open).collect();
-        let closed = closed.contains(&true).then_some(closed.as_slice());
-        let masks: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh, closed)).collect();
+        let open = open_triangles.contains(&false).then_some(open_triangles);
+        let masks: Vec<Vec<u64>> = views.par_iter().map(|v| coverage_mask(v, mesh, open)).collect();
         let pixels = masks.iter().flatten().map(|w| u64::from(w.count_ones())).sum();
         Silhouettes { views, masks, pixels }
     }

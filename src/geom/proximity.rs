@@ -3,7 +3,10 @@
 //! buckets.
 
 use crate::mesh::Mesh;
+use crate::mesh::buckets::Buckets;
 use glam::DVec3;
+use rayon::prelude::*;
+use std::ops::Range;
 
 pub struct SurfaceIndex<'a> {
     mesh: &'a Mesh,
@@ -29,28 +32,30 @@ impl<'a> SurfaceIndex<'a> {
             cell,
             dims,
             tolerance,
-            offsets: vec![0; dims.iter().product::<usize>() + 1],
+            offsets: Vec::new(),
             triangles: Vec::new(),
         };
-        // Two passes: count, then fill.
-        for t in 0..mesh.triangles.len() {
-            index.for_buckets(t, |b, index| index.offsets[b + 1] += 1);
-        }
-        for b in 1..index.offsets.len() {
-            index.offsets[b] += index.offsets[b - 1];
-        }
-        let mut fill = index.offsets.clone();
-        index.triangles = vec![0; index.offsets[index.offsets.len() - 1]];
-        for t in 0..mesh.triangles.len() {
-            index.for_buckets(t, |b, index| {
-                index.triangles[fill[b]] = t as u32;
-                fill[b] += 1;
-            });
-        }
+        // Each triangle's buckets found in parallel; grouped in the triangles' order.
+        let reached: Vec<[Range<usize>; 3]> = (0..mesh.triangles.len())
+            .into_par_iter()
+            .map(|t| {
+                let [a, b, c] = mesh.corners(t).map(|p| p.as_dvec3());
+                index.bucket_range(a.min(b).min(c) - tolerance, a.max(b).max(c) + tolerance)
+            })
+            .collect();
+        let each = reached.iter().zip(0u32..).flat_map(|([rx, ry, rz], t)| {
+            let index = &index;
+            rx.clone().flat_map(move |x| {
+                ry.clone()
+                    .flat_map(move |y| rz.clone().map(move |z| (index.bucket(x, y, z), t)))
+            })
+        });
+        let Buckets { starts, items } = Buckets::new(dims.iter().product(), each);
+        (index.offsets, index.triangles) = (starts, items);
         index
     }
 
-    fn bucket_range(&self, lo: DVec3, hi: DVec3) -> [std::ops::Range<usize>; 3] {
+    fn bucket_range(&self, lo: DVec3, hi: DVec3) -> [Range<usize>; 3] {
         std::array::from_fn(|k| {
             let a = ((lo[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize;
             let b = ((hi[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize;
@@ -60,19 +65,6 @@ impl<'a> SurfaceIndex<'a> {
 
     fn bucket(&self, x: usize, y: usize, z: usize) -> usize {
         (x * self.dims[1] + y) * self.dims[2] + z
-    }
-
-    fn for_buckets(&mut self, t: usize, mut f: impl FnMut(usize, &mut Self)) {
-        let [a, b, c] = self.mesh.corners(t).map(|p| p.as_dvec3());
-        let [rx, ry, rz] = self.bucket_range(a.min(b).min(c) - self.tolerance, a.max(b).max(c) + self.tolerance);
-        for x in rx {
-            for y in ry.clone() {
-                for z in rz.clone() {
-                    let bucket = self.bucket(x, y, z);
-                    f(bucket, self);
-                }
-            }
-        }
     }
 
     /// Whether `p` is within the tolerance of some triangle.

@@ -23,30 +23,16 @@ pub fn read_groups(bytes: &[u8]) -> Result<Vec<(String, RawMesh)>, IngestError> 
     // Materials do not change geometry, and tobj rejects some material lines that other readers
     // accept (an empty `usemtl`), so they are left out. CRLF endings become LF, and lines
     // continued with `\` are joined here (tobj's own joining fails on some exporters' output).
-    let mut geometry = Vec::with_capacity(bytes.len());
-    for line in bytes.split(|&b| b == b'\n') {
-        let line = line.strip_suffix(b"\r").unwrap_or(line);
-        let start = line.trim_ascii_start();
-        if start.starts_with(b"usemtl") || start.starts_with(b"mtllib") {
-            continue;
-        }
-        match line.trim_ascii_end().strip_suffix(b"\\") {
-            Some(continued) => {
-                geometry.extend_from_slice(continued);
-                geometry.push(b' ');
-            }
-            None => {
-                geometry.extend_from_slice(line);
-                geometry.push(b'\n');
-            }
-        }
-    }
-    let (models, _) = tobj::load_obj_buf(
-        &mut std::io::Cursor::new(geometry),
-        &options,
-        |_| Ok(Default::default()),
-    )
-    .map_err(|e| IngestError::malformed("OBJ", e.to_string()))?;
+    // A file with none of those goes to tobj as it is.
+    let rewrite = memchr::memchr2(b'\r', b'\\', bytes).is_some()
+        || memchr::memmem::find(bytes, b"usemtl").is_some()
+        || memchr::memmem::find(bytes, b"mtllib").is_some();
+    let geometry = match rewrite {
+        true => std::borrow::Cow::Owned(geometry_lines(bytes)),
+        false => std::borrow::Cow::Borrowed(bytes),
+    };
+    let (models, _) = tobj::load_obj_buf(&mut &*geometry, &options, |_| Ok(Default::default()))
+        .map_err(|e| IngestError::malformed("OBJ", e.to_string()))?;
     let mut groups = Vec::with_capacity(models.len());
     for model in &models {
         let mut raw = RawMesh::default();
@@ -65,4 +51,27 @@ pub fn read_groups(bytes: &[u8]) -> Result<Vec<(String, RawMesh)>, IngestError> 
         groups.push((model.name.clone(), raw));
     }
     Ok(groups)
+}
+
+/// The file's lines without material lines, with CRLF endings as LF and continued lines joined.
+fn geometry_lines(bytes: &[u8]) -> Vec<u8> {
+    let mut geometry = Vec::with_capacity(bytes.len());
+    for line in bytes.split(|&b| b == b'\n') {
+        let line = line.strip_suffix(b"\r").unwrap_or(line);
+        let start = line.trim_ascii_start();
+        if start.starts_with(b"usemtl") || start.starts_with(b"mtllib") {
+            continue;
+        }
+        match line.trim_ascii_end().strip_suffix(b"\\") {
+            Some(continued) => {
+                geometry.extend_from_slice(continued);
+                geometry.push(b' ');
+            }
+            None => {
+                geometry.extend_from_slice(line);
+                geometry.push(b'\n');
+            }
+        }
+    }
+    geometry
 }

@@ -2,6 +2,7 @@
 
 use super::{IngestError, RawMesh};
 use glam::Vec3;
+use std::borrow::Cow;
 
 /// Every group and object as one mesh.
 pub fn read(bytes: &[u8]) -> Result<RawMesh, IngestError> {
@@ -20,17 +21,7 @@ pub fn read_groups(bytes: &[u8]) -> Result<Vec<(String, RawMesh)>, IngestError> 
         ignore_lines: true,
         ..Default::default()
     };
-    // Materials do not change geometry, and tobj rejects some material lines that other readers
-    // accept (an empty `usemtl`), so they are left out. CRLF endings become LF, and lines
-    // continued with `\` are joined here (tobj's own joining fails on some exporters' output).
-    // A file with none of those goes to tobj as it is.
-    let rewrite = memchr::memchr2(b'\r', b'\\', bytes).is_some()
-        || memchr::memmem::find(bytes, b"usemtl").is_some()
-        || memchr::memmem::find(bytes, b"mtllib").is_some();
-    let geometry = match rewrite {
-        true => std::borrow::Cow::Owned(geometry_lines(bytes)),
-        false => std::borrow::Cow::Borrowed(bytes),
-    };
+    let geometry = geometry_lines(bytes);
     let (models, _) = tobj::load_obj_buf(&mut &*geometry, &options, |_| Ok(Default::default()))
         .map_err(|e| IngestError::malformed("OBJ", e.to_string()))?;
     let mut groups = Vec::with_capacity(models.len());
@@ -54,7 +45,16 @@ pub fn read_groups(bytes: &[u8]) -> Result<Vec<(String, RawMesh)>, IngestError> 
 }
 
 /// The file's lines without material lines, with CRLF endings as LF and continued lines joined.
-fn geometry_lines(bytes: &[u8]) -> Vec<u8> {
+/// Materials do not change geometry, and tobj rejects some material lines that other readers
+/// accept (an empty `usemtl`); tobj's own joining fails on some exporters' output. A file with
+/// none of those is the bytes as they are, not copied.
+fn geometry_lines(bytes: &[u8]) -> Cow<'_, [u8]> {
+    let rewrite = memchr::memchr2(b'\r', b'\\', bytes).is_some()
+        || memchr::memmem::find(bytes, b"usemtl").is_some()
+        || memchr::memmem::find(bytes, b"mtllib").is_some();
+    if !rewrite {
+        return Cow::Borrowed(bytes);
+    }
     let mut geometry = Vec::with_capacity(bytes.len());
     for line in bytes.split(|&b| b == b'\n') {
         let line = line.strip_suffix(b"\r").unwrap_or(line);
@@ -73,5 +73,5 @@ fn geometry_lines(bytes: &[u8]) -> Vec<u8> {
             }
         }
     }
-    geometry
+    Cow::Owned(geometry)
 }

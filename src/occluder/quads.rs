@@ -380,6 +380,11 @@ struct Block {
     heights: (f64, f64),
 }
 
+/// Triangles in each share of [`blocked_ranges`], and the blocks its list has room for at first
+/// per triangle, about what a triangle makes: a list that outgrows its room is copied.
+const TRIANGLES_PER_SHARE: usize = 1024;
+const BLOCKS_PER_TRIANGLE: usize = 8;
+
 /// The heights each triangle blocks in each cell whose closed footprint it meets (of those
 /// `reach` holds, if given), by cell: in one list per share of the triangles, which the
 /// counting sort reads without joining them.
@@ -387,11 +392,14 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, reach: Option
     let nv = g.dims[1];
     // Each corner's place among the cells, once rather than in each of its triangles.
     let in_cells: Vec<[f64; 2]> = corners.iter().map(|p| g.place_of(p)).collect();
-    (0..mesh.triangles.len())
+    let count = mesh.triangles.len();
+    (0..count.div_ceil(TRIANGLES_PER_SHARE))
         .into_par_iter()
-        .fold(
-            || (Vec::new(), CellHeights::default()),
-            |(mut out, mut cells), t| {
+        .map(|share| {
+            let triangles = share * TRIANGLES_PER_SHARE..count.min((share + 1) * TRIANGLES_PER_SHARE);
+            let mut out = Vec::with_capacity(triangles.len() * BLOCKS_PER_TRIANGLE);
+            let mut cells = CellHeights::default();
+            for t in triangles {
                 let tri = mesh.triangles[t].map(|i| corners[i as usize]);
                 let places = mesh.triangles[t].map(|i| in_cells[i as usize]);
                 let block = |c: usize, heights| Block {
@@ -403,12 +411,12 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, reach: Option
                 let hi = |k: usize| tri.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
                 let (ru, rv) = (g.range_of(0, &places), g.range_of(1, &places));
                 if reach.is_some_and(|reach| !reach.any(&ru, &rv)) {
-                    return (out, cells);
+                    continue;
                 }
                 if ru.len() == 1 && rv.len() == 1 {
                     // Wholly inside one cell.
                     out.push(block(ru.start * nv + rv.start, (lo(2), hi(2))));
-                    return (out, cells);
+                    continue;
                 }
                 cells.of_triangle(&tri, &places, g, [ru.start, rv.start], [ru.len(), rv.len()]);
                 for (u, row) in ru.zip(cells.heights.chunks(rv.len() + 2).skip(1)) {
@@ -418,10 +426,9 @@ fn blocked_ranges(mesh: &Mesh, corners: &[[f64; 3]], g: &AxisGrid, reach: Option
                         }
                     }
                 }
-                (out, cells)
-            },
-        )
-        .map(|(out, _)| out)
+            }
+            out
+        })
         .collect()
 }
 
@@ -910,12 +917,16 @@ fn columns_before(first: usize, v: usize) -> u64 {
 
 /// The first and last rows and columns with an open cell, if any.
 fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2])> {
-    let rows: Vec<usize> = (0..open.len() / row_words)
-        .filter(|&u| open[u * row_words..(u + 1) * row_words].iter().any(|&w| w != 0))
-        .collect();
-    let mut columns = vec![0u64; row_words];
-    for &u in &rows {
-        for (any, word) in columns.iter_mut().zip(&open[u * row_words..]) {
+    let mut rows = open
+        .chunks(row_words)
+        .enumerate()
+        .filter(|(_, row)| row.iter().any(|&w| w != 0));
+    let (first, row) = rows.next()?;
+    let mut columns = row.to_vec();
+    let mut last = first;
+    for (u, row) in rows {
+        last = u;
+        for (any, word) in columns.iter_mut().zip(row) {
             *any |= word;
         }
     }
@@ -925,7 +936,7 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
     );
     let v0 = a * 64 + columns[a].trailing_zeros() as usize;
     let v1 = b * 64 + 63 - columns[b].leading_zeros() as usize;
-    Some(([*rows.first()?, v0], [*rows.last()?, v1]))
+    Some(([first, v0], [last, v1]))
 }
 
 /// Greedy: the largest open rectangle over all candidate planes, then the next on what is left.

@@ -269,7 +269,8 @@ fn inside_gaps(
         .into_par_iter()
         .enumerate()
         .map(|(u, row)| {
-            let (mut list, mut ends) = (Vec::new(), Vec::with_capacity(nv));
+            // Room for a gap a cell, about what a row has.
+            let (mut list, mut ends) = (Vec::with_capacity(nv), Vec::with_capacity(nv));
             let (mut found, mut inside) = (Vec::new(), Vec::new());
             for v in 0..nv {
                 let c = u * nv + v;
@@ -917,26 +918,18 @@ fn columns_before(first: usize, v: usize) -> u64 {
 
 /// The first and last rows and columns with an open cell, if any.
 fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2])> {
-    let mut rows = open
-        .chunks(row_words)
-        .enumerate()
-        .filter(|(_, row)| row.iter().any(|&w| w != 0));
-    let (first, row) = rows.next()?;
-    let mut columns = row.to_vec();
-    let mut last = first;
-    for (u, row) in rows {
-        last = u;
-        for (any, word) in columns.iter_mut().zip(row) {
-            *any |= word;
-        }
+    // Each row's first and last open column, where it has any.
+    let mut rows = open.chunks(row_words).enumerate().filter_map(|(u, row)| {
+        let (a, b) = (row.iter().position(|&w| w != 0)?, row.iter().rposition(|&w| w != 0)?);
+        let first = a * 64 + row[a].trailing_zeros() as usize;
+        Some((u, first, b * 64 + 63 - row[b].leading_zeros() as usize))
+    });
+    let (u0, mut v0, mut v1) = rows.next()?;
+    let mut u1 = u0;
+    for (u, first, last) in rows {
+        (u1, v0, v1) = (u, v0.min(first), v1.max(last));
     }
-    let (a, b) = (
-        columns.iter().position(|&w| w != 0)?,
-        columns.iter().rposition(|&w| w != 0)?,
-    );
-    let v0 = a * 64 + columns[a].trailing_zeros() as usize;
-    let v1 = b * 64 + 63 - columns[b].leading_zeros() as usize;
-    Some(([first, v0], [last, v1]))
+    Some(([u0, v0], [u1, v1]))
 }
 
 /// Greedy: the largest open rectangle over all candidate planes, then the next on what is left.

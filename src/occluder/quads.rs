@@ -731,35 +731,41 @@ impl Planes {
     /// Closes each cell of `rect` on every plane its gap holds, the gaps given by index in
     /// [`Gaps::list`] in the order of [`CellRect::iter`]: a quad now fills that gap there. A
     /// plane whose best rectangle held a closed cell has only a bound left. Row by row, the
-    /// cells' runs of planes become masks of cells, one per run of planes with the same cells.
+    /// cells' runs of planes become a mask of cells for each plane in order of height.
     fn close(&mut self, rect: &CellRect, gaps: &[usize]) {
         let width = rect.v[1] - rect.v[0];
-        let words = rect.v[0] / 64..(rect.v[1] - 1) / 64 + 1;
-        let mut mask = vec![0u64; words.len()];
-        // Where each cell's run of planes starts and ends: (position in `order`, column, whether
-        // it starts there), by position.
-        let mut run_ends = Vec::with_capacity(2 * width);
+        let first_word = rect.v[0] / 64;
+        let n = (rect.v[1] - 1) / 64 + 1 - first_word;
+        // For each position in `order`, the row's cells whose run of planes starts there and
+        // those whose run ends there, `n` words each.
+        let positions = self.order.len() + 1;
+        let (mut starting, mut ending) = (vec![0u64; positions * n], vec![0u64; positions * n]);
+        let mut mask = vec![0u64; n];
         for (u, row_gaps) in (rect.u[0]..rect.u[1]).zip(gaps.chunks(width)) {
-            run_ends.clear();
+            // The positions the row's runs span.
+            let (mut lowest, mut end) = (positions, 0);
             for (v, &gap) in (rect.v[0]..rect.v[1]).zip(row_gaps) {
-                let held = &self.held[gap];
+                let held = self.held[gap].clone();
                 if !held.is_empty() {
-                    run_ends.extend([(held.start, v, true), (held.end, v, false)]);
+                    let (word, bit) = (v / 64 - first_word, 1u64 << (v % 64));
+                    starting[held.start * n + word] |= bit;
+                    ending[held.end * n + word] |= bit;
+                    (lowest, end) = (lowest.min(held.start), end.max(held.end));
                 }
             }
-            run_ends.sort_unstable_by_key(|&(k, _, _)| k);
             mask.fill(0);
-            for (at, &(k, v, starts)) in run_ends.iter().enumerate() {
-                let bit = 1u64 << (v % 64);
-                if starts {
-                    mask[v / 64 - words.start] |= bit;
-                } else {
-                    mask[v / 64 - words.start] &= !bit;
+            for k in lowest..end {
+                let (starts, ends) = (&starting[k * n..(k + 1) * n], &ending[k * n..(k + 1) * n]);
+                for ((m, s), e) in mask.iter_mut().zip(starts).zip(ends) {
+                    *m = (*m | s) & !e;
                 }
-                let next = run_ends.get(at + 1).map_or(k, |e| e.0);
-                for k in k..next {
-                    self.close_row(self.order[k], u, words.start, &mask);
+                if mask.iter().any(|&m| m != 0) {
+                    self.close_row(self.order[k], u, first_word, &mask);
                 }
+            }
+            if lowest < end {
+                starting[lowest * n..(end + 1) * n].fill(0);
+                ending[lowest * n..(end + 1) * n].fill(0);
             }
         }
     }

@@ -41,37 +41,38 @@ type Height = u16;
 /// column's height and as wide as the columns around it at least as high, replace `best` when
 /// larger (so the first found of the largest size stays). `live` has a bit for each column at
 /// least `min_side` high; the others bound rectangles as an empty column does, since none
-/// that holds them is tall enough, so runs of them are skipped a word at a time.
+/// that holds them is tall enough, so runs of them are skipped a word at a time. The stack
+/// holds each rectangle still open as (first column, height), heights rising: columns as high
+/// as the top only widen it.
 fn pop_row(
     u: usize,
     heights: &[Height],
     live: &[u64],
     min_side: usize,
-    stack: &mut Vec<usize>,
+    stack: &mut Vec<(usize, Height)>,
     best: &mut Option<CellRect>,
 ) {
     let nv = heights.len();
     let mut best_cells = best.map_or(0, |b| b.cells());
     stack.clear();
-    // The first column after the last one too low; where a rectangle with nothing left of it
-    // on the stack begins. While the stack is empty it is `v`.
-    let mut floor = 0;
     let mut v = 0;
     while v <= nv {
         if stack.is_empty() {
             match next_bit(live, v) {
-                Some(next) if next < nv => (floor, v) = (next, next),
+                Some(next) if next < nv => v = next,
                 _ => return,
             }
         }
         let h = heights.get(v).copied().filter(|&h| h as usize >= min_side).unwrap_or(0);
-        while let Some(&top) = stack.last() {
-            if heights[top] <= h {
+        // Where a rectangle as high as this column begins: the first column of those it ends.
+        let mut start = v;
+        while let Some(&(left, height)) = stack.last() {
+            if height <= h {
                 break;
             }
             stack.pop();
-            let left = stack.last().map_or(floor, |&s| s + 1);
-            let height = heights[top] as usize;
+            start = left;
+            let height = height as usize;
             let cells = height * (v - left);
             // Every rectangle lies in one of these maximal ones, with sides at least as long.
             if v - left >= min_side && cells > best_cells {
@@ -82,10 +83,8 @@ fn pop_row(
                 });
             }
         }
-        if h == 0 {
-            floor = v + 1;
-        } else {
-            stack.push(v);
+        if h > 0 && stack.last().is_none_or(|&(_, height)| height < h) {
+            stack.push((start, h));
         }
         v += 1;
     }
@@ -165,7 +164,7 @@ pub struct Sweep {
     /// What each row's own search found.
     rows: Vec<RowBest>,
     live: Vec<u64>,
-    stack: Vec<usize>,
+    stack: Vec<(usize, Height)>,
     /// A row's heights before they grow again.
     before: Vec<Height>,
 }

@@ -894,20 +894,28 @@ impl Planes {
 /// With no cell of `rect` open, an open rectangle lies wholly above, below, left or right of
 /// it: the most open cells of those four parts bound it. None when a cell of `rect` is open.
 fn open_around(open: &[u64], row_words: usize, rect: &CellRect) -> Option<usize> {
-    let before = |w: usize, v: usize| columns_before(64 * w, v);
     let [mut above, mut below, mut left, mut right] = [0usize; 4];
-    for (u, row) in open.chunks(row_words).enumerate() {
-        for (w, &word) in row.iter().enumerate().filter(|(_, word)| **word != 0) {
-            let (l, r) = (word & before(w, rect.v[0]), word & !before(w, rect.v[1]));
-            if u < rect.u[0] {
+    // A word of the rows at a time, with its columns left and right of the rectangle.
+    for w in 0..row_words {
+        let (l, r) = (columns_before(64 * w, rect.v[0]), !columns_before(64 * w, rect.v[1]));
+        let words = open[w..].iter().step_by(row_words);
+        let (rows_above, rows_within) = (rect.u[0], rect.u[1] - rect.u[0]);
+        if words
+            .clone()
+            .skip(rows_above)
+            .take(rows_within)
+            .any(|word| word & !l & !r != 0)
+        {
+            return None;
+        }
+        for (u, &word) in words.enumerate().filter(|(_, word)| **word != 0) {
+            if u < rows_above {
                 above += word.count_ones() as usize;
             } else if u >= rect.u[1] {
                 below += word.count_ones() as usize;
-            } else if word & !l & !r != 0 {
-                return None;
             }
-            left += l.count_ones() as usize;
-            right += r.count_ones() as usize;
+            left += (word & l).count_ones() as usize;
+            right += (word & r).count_ones() as usize;
         }
     }
     Some(above.max(below).max(left).max(right))

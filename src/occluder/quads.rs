@@ -745,7 +745,7 @@ impl Planes {
             // The positions the row's runs span.
             let (mut lowest, mut end) = (positions, 0);
             for (v, &gap) in (rect.v[0]..rect.v[1]).zip(row_gaps) {
-                let held = self.held[gap].clone();
+                let held = &self.held[gap];
                 if !held.is_empty() {
                     let (word, bit) = (v / 64 - first_word, 1u64 << (v % 64));
                     starting[held.start * n + word] |= bit;
@@ -895,23 +895,19 @@ impl Planes {
 /// it: the most open cells of those four parts bound it. None when a cell of `rect` is open.
 fn open_around(open: &[u64], row_words: usize, rect: &CellRect) -> Option<usize> {
     let [mut above, mut below, mut left, mut right] = [0usize; 4];
+    let rect_rows = rect.u[0]..rect.u[1];
     // A word of the rows at a time, with its columns left and right of the rectangle.
     for w in 0..row_words {
         let (l, r) = (columns_before(64 * w, rect.v[0]), !columns_before(64 * w, rect.v[1]));
         let words = open[w..].iter().step_by(row_words);
-        let (rows_above, rows_within) = (rect.u[0], rect.u[1] - rect.u[0]);
-        if words
-            .clone()
-            .skip(rows_above)
-            .take(rows_within)
-            .any(|word| word & !l & !r != 0)
-        {
+        let mut within = words.clone().skip(rect_rows.start).take(rect_rows.len());
+        if within.any(|word| word & !l & !r != 0) {
             return None;
         }
         for (u, &word) in words.enumerate().filter(|(_, word)| **word != 0) {
-            if u < rows_above {
+            if u < rect_rows.start {
                 above += word.count_ones() as usize;
-            } else if u >= rect.u[1] {
+            } else if u >= rect_rows.end {
                 below += word.count_ones() as usize;
             }
             left += (word & l).count_ones() as usize;

@@ -602,8 +602,8 @@ enum Bound {
     /// At most its open cells, or the cells of a best that a taken rectangle has since closed
     /// a cell of.
     Counted,
-    /// Also at most what its rows' longest runs of open cells allow ([`runs_bound`]), over the
-    /// cells open now.
+    /// Also at most what its rows' runs of open cells allow ([`runs_bound`]), over the cells
+    /// open now.
     Runs,
     /// The cells of `best`, searched over the cells open now.
     Exact,
@@ -869,27 +869,34 @@ impl Planes {
     }
 }
 
-/// An upper bound on the cells of the largest open rectangle: over the rows it spans, each has
-/// a run of open cells as long as its width, so it fits under the histogram of the rows'
-/// longest runs, whose largest rectangle the stack method finds. Far tighter than a count of
-/// cells where a taken rectangle has cut the open cells apart, and a fraction of a search.
+/// An upper bound on the cells of the largest open rectangle. It spans at least two rows
+/// (`MIN_SIDE`), and each two rows of it next to each other have a run of cells open in both
+/// as long as its width: so it fits under the histogram of those runs, one a pair of rows,
+/// whose largest rectangle the stack method finds (a rectangle over k pairs spans k + 1
+/// rows). Far tighter than a count of cells where a taken rectangle has cut the open cells
+/// apart, and a fraction of a search.
 fn runs_bound(open: &[u64], row_words: usize, stack: &mut Vec<(usize, usize)>) -> usize {
+    const _: () = assert!(MIN_SIDE >= 2, "a rectangle spans a pair of rows");
     stack.clear();
     let rows = open.len() / row_words;
     let mut best = 0;
-    for u in 0..=rows {
-        let run = match u < rows {
-            true => longest_run(&open[u * row_words..(u + 1) * row_words]),
+    // Pair u is rows u and u + 1; the one past the last pair ends every rectangle.
+    for u in 0..rows {
+        let run = match u + 1 < rows {
+            true => {
+                let (upper, lower) = (&open[u * row_words..], &open[(u + 1) * row_words..]);
+                longest_run(upper[..row_words].iter().zip(lower).map(|(a, b)| a & b))
+            }
             false => 0,
         };
-        // Where a rectangle as wide as this row's run begins: the first row of those it ends.
+        // Where a rectangle as wide as this pair's run begins: the first pair of those it ends.
         let mut start = u;
         while let Some(&(first, width)) = stack.last() {
             if width <= run {
                 break;
             }
             stack.pop();
-            best = best.max(width * (u - first));
+            best = best.max(width * (u - first + 1));
             start = first;
         }
         if run > 0 && stack.last().is_none_or(|&(_, width)| width < run) {
@@ -899,10 +906,10 @@ fn runs_bound(open: &[u64], row_words: usize, stack: &mut Vec<(usize, usize)>) -
     best
 }
 
-/// The most open cells side by side in a row's words.
-fn longest_run(row: &[u64]) -> usize {
+/// The most set bits side by side in a row's words.
+fn longest_run(words: impl Iterator<Item = u64>) -> usize {
     let (mut longest, mut current) = (0, 0);
-    for &word in row {
+    for word in words {
         match word {
             0 => current = 0,
             u64::MAX => current += 64,
@@ -1270,7 +1277,7 @@ mod tests {
     }
 
     #[test]
-    fn the_rows_runs_bound_the_largest_rectangle_and_meet_it_on_one() {
+    fn the_runs_open_in_pairs_of_rows_bound_the_largest_rectangle_and_meet_it_on_one() {
         let mut rng = fastrand::Rng::with_seed(5);
         let mut stack = Vec::new();
         for round in 0..400 {
@@ -1283,14 +1290,20 @@ mod tests {
             for u in 0..nu {
                 let row = &mask[u * nv..(u + 1) * nv];
                 let longest = row.split(|open| !open).map(<[bool]>::len).max().unwrap_or(0);
-                assert_eq!(longest_run(&bits[u * row_words..(u + 1) * row_words]), longest);
+                assert_eq!(
+                    longest_run(bits[u * row_words..(u + 1) * row_words].iter().copied()),
+                    longest
+                );
             }
-            let largest_cells = largest(&mask, nu, nv, 1).map_or(0, |r| r.cells());
+            let largest_cells = largest(&mask, nu, nv, MIN_SIDE).map_or(0, |r| r.cells());
             assert!(runs_bound(&bits, row_words, &mut stack) >= largest_cells);
-            // One rectangle alone: the bound is its cells.
-            let (u0, v0) = (rng.usize(0..nu), rng.usize(0..nv));
+            // One rectangle alone, at least two rows high: the bound is its cells.
+            if nu < MIN_SIDE {
+                continue;
+            }
+            let (u0, v0) = (rng.usize(0..nu - 1), rng.usize(0..nv));
             let rect = CellRect {
-                u: [u0, rng.usize(u0 + 1..=nu)],
+                u: [u0, rng.usize(u0 + 2..=nu)],
                 v: [v0, rng.usize(v0 + 1..=nv)],
             };
             let mut one = vec![false; nu * nv];

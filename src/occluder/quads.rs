@@ -602,8 +602,8 @@ enum Bound {
     /// At most its open cells, or the cells of a best that a taken rectangle has since closed
     /// a cell of.
     Counted,
-    /// Also at most what its rows' runs of open cells allow ([`runs_bound`]), over the cells
-    /// open now.
+    /// Also at most what the runs of cells open in its pairs of rows allow ([`runs_bound`]),
+    /// over the cells open now.
     Runs,
     /// The cells of `best`, searched over the cells open now.
     Exact,
@@ -798,6 +798,7 @@ impl Planes {
                     .map_or(row..row + 1, |d| d.start.min(row)..d.end.max(row + 1)),
             );
         }
+        // A runs bound still holds, but one over the cells open now may be lower.
         if in_best || plane.state == Bound::Runs {
             plane.state = Bound::Counted;
         }
@@ -873,8 +874,8 @@ impl Planes {
 /// (`MIN_SIDE`), and each two rows of it next to each other have a run of cells open in both
 /// as long as its width: so it fits under the histogram of those runs, one a pair of rows,
 /// whose largest rectangle the stack method finds (a rectangle over k pairs spans k + 1
-/// rows). Far tighter than a count of cells where a taken rectangle has cut the open cells
-/// apart, and a fraction of a search.
+/// rows). Much tighter than a count of the cells once a taken rectangle has cut them apart,
+/// at a fraction of a search's cost.
 fn runs_bound(open: &[u64], row_words: usize, stack: &mut Vec<(usize, usize)>) -> usize {
     const _: () = assert!(MIN_SIDE >= 2, "a rectangle spans a pair of rows");
     stack.clear();
@@ -959,10 +960,11 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
 /// Greedy: the largest open rectangle over all candidate planes, then the next on what is left.
 /// A plane is searched only once an upper bound on its rectangle leads all others: its open
 /// cells at first, or after a taken rectangle closes a cell of its best, the fewer of that
-/// best's and its open cells; when such a bound leads, it is first cut to what the rows' runs
-/// of open cells allow ([`runs_bound`]), and the plane searched if it still leads. A plane with
-/// the same open cells as a neighbour searched since takes its best. These are lazy greedy picks,
-/// the same as searching every plane at first and again whenever it loses cells.
+/// best's and its open cells; when such a bound leads, it is first cut to what the runs of
+/// cells open in its pairs of rows allow ([`runs_bound`]), and the plane searched if it still
+/// leads. A plane with the same open cells as a neighbour searched since takes its best. These
+/// are lazy greedy picks, the same as searching every plane at first and again whenever it
+/// loses cells.
 fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64, inset: f64) -> Vec<Panel> {
     let nv = g.dims[1];
     let mut planes = Planes::new(gaps, planes, margin, g.dims);

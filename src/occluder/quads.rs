@@ -20,7 +20,7 @@ use crate::geom::grid_counts::GridCounts;
 use crate::geom::{ceil_index, f32_slack, floor_index, greater, index_to_f64, lesser};
 use crate::mesh::buckets::Buckets;
 use crate::mesh::{Mesh, point_bounds};
-use crate::voxel::columns::{Crossing, column_hit};
+use crate::voxel::columns::column_sign;
 use glam::{DMat3, DQuat, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -111,8 +111,14 @@ impl AxisGrid {
     /// The lines along grid axis k (as indices for [`AxisGrid::line`]) within [lo, hi], in
     /// cells from the origin ([`AxisGrid::cells_along`]), give or take rounding. Without
     /// rounding calls: the coordinates are never below the origin.
-    fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::RangeInclusive<usize> {
-        ceil_index(lo)..=floor_index(hi).min(self.dims[k])
+    fn lines_within(&self, k: usize, lo: f64, hi: f64) -> std::ops::Range<usize> {
+        self.lines_from_floors(k, (floor_index(lo), lo), floor_index(hi))
+    }
+
+    /// [`AxisGrid::lines_within`] from the floors of the bounds, where they are known: the
+    /// lower bound as (its floor, itself), the upper as its floor.
+    fn lines_from_floors(&self, k: usize, lo: (usize, f64), hi_floor: usize) -> std::ops::Range<usize> {
+        lo.0 + usize::from(index_to_f64(lo.0) < lo.1)..hi_floor.min(self.dims[k]) + 1
     }
 }
 
@@ -300,7 +306,7 @@ fn inside_gaps(
                     Solid::Closed { parity } => {
                         let crossing = |block: &Block| {
                             let tri = mesh.triangles[block.triangle as usize].map(|i| corners[i as usize]);
-                            column_hit(&tri, center)
+                            column_sign(&tri, center)
                         };
                         closed_gaps(&found, ranges, crossing, parity, &mut inside);
                     }
@@ -332,13 +338,13 @@ fn inside_gaps(
 
 /// Whether each gap of a cell of a closed surface is inside, into `inside`: `found` are the
 /// gaps, each with the index in `blocks` (sorted by lowest height) of the first block above
-/// it. The cell's centre line crosses only the blocks' triangles (`crossing`), and its
-/// crossings above a gap decide it; as all of them cancel out, so do those below, negated.
-/// The side with fewer blocks is counted.
+/// it. The cell's centre line crosses only the blocks' triangles (`crossing` gives the sign
+/// where it does), and its crossings above a gap decide it; as all of them cancel out, so do
+/// those below, negated. The side with fewer blocks is counted.
 fn closed_gaps(
     found: &[(usize, Gap)],
     blocks: &[Block],
-    crossing: impl Fn(&Block) -> Option<Crossing<f64>>,
+    crossing: impl Fn(&Block) -> Option<i8>,
     parity: bool,
     inside: &mut Vec<bool>,
 ) {
@@ -348,8 +354,8 @@ fn closed_gaps(
     // The signed sum and the count of the crossings counted so far.
     let (mut sum, mut count) = (0i32, 0u32);
     let mut add = |blocks: &[Block]| {
-        for hit in blocks.iter().filter_map(&crossing) {
-            sum += i32::from(hit.sign);
+        for sign in blocks.iter().filter_map(&crossing) {
+            sum += i32::from(sign);
             count += 1;
         }
         (sum, count)
@@ -444,8 +450,9 @@ struct CellHeights {
     first: [usize; 2],
     cells: [usize; 2],
     /// Where the triangle crosses each line between cells along the first axis, from the
-    /// block's first on: its points of lowest and highest second coordinate, as (v, t).
-    sections: Vec<Option<[(f64, f64); 2]>>,
+    /// block's first on: its points of lowest and highest second coordinate, as (v, t); the
+    /// lowest above the highest where it crosses none.
+    sections: Vec<[(f64, f64); 2]>,
 }
 
 /// The cells along one axis whose closed footprints hold a point: the first, as its place in
@@ -471,21 +478,26 @@ impl CellHeights {
         self.heights
             .resize((cells[0] + 2) * (cells[1] + 2), (f64::INFINITY, f64::NEG_INFINITY));
         self.sections.clear();
-        self.sections.resize(cells[0] + 1, None);
+        self.sections
+            .resize(cells[0] + 1, [(f64::INFINITY, 0.0), (f64::NEG_INFINITY, 0.0)]);
         (self.first, self.cells) = (first, cells);
-        for (p, place) in tri.iter().zip(places) {
-            self.add(self.at(0, place[0]), self.at(1, place[1]), p[2]);
+        // Each corner's line at or below it along each axis, for its own cells and for the
+        // lines its edges cross.
+        let floors = places.map(|p| p.map(floor_index));
+        for i in 0..3 {
+            let along = |k: usize| self.at_floor(k, floors[i][k], places[i][k]);
+            self.add(along(0), along(1), tri[i][2]);
         }
         for k in 0..2 {
             let other = 1 - k;
-            for (i, &a) in tri.iter().enumerate() {
-                let b = tri[(i + 1) % 3];
+            for i in 0..3 {
+                let j = (i + 1) % 3;
+                let (a, b) = (tri[i], tri[j]);
                 if a[k] == b[k] {
                     continue;
                 }
-                let (pa, pb) = (places[i][k], places[(i + 1) % 3][k]);
-                let (lo, hi) = if a[k] < b[k] { (pa, pb) } else { (pb, pa) };
-                for line in g.lines_within(k, lo, hi) {
+                let (lo, hi) = if a[k] < b[k] { (i, j) } else { (j, i) };
+                for line in g.lines_from_floors(k, (floors[lo][k], places[lo][k]), floors[hi][k]) {
                     let s = (g.line(k, line) - a[k]) / (b[k] - a[k]);
                     let (y, t) = (a[other] + s * (b[other] - a[other]), a[2] + s * (b[2] - a[2]));
                     let (across, along) = (self.on_line(k, line), self.at(other, g.cells_along(other, y)));
@@ -494,14 +506,13 @@ impl CellHeights {
                         continue;
                     }
                     self.add(across, along, t);
-                    if let Some(section) = self.sections.get_mut(line.wrapping_sub(first[0])) {
-                        *section = Some(match *section {
-                            None => [(y, t); 2],
-                            Some([low, high]) => [
-                                if y < low.0 { (y, t) } else { low },
-                                if y > high.0 { (y, t) } else { high },
-                            ],
-                        });
+                    if let Some([low, high]) = self.sections.get_mut(line.wrapping_sub(first[0])) {
+                        if y < low.0 {
+                            *low = (y, t);
+                        }
+                        if y > high.0 {
+                            *high = (y, t);
+                        }
                     }
                 }
             }
@@ -509,15 +520,16 @@ impl CellHeights {
         // Where the triangle's section along a line of the first axis crosses the lines of
         // the second: the corners of four cells.
         let sections = std::mem::take(&mut self.sections);
-        for (k, section) in sections.iter().enumerate() {
-            let Some([(v0, t0), (v1, t1)]) = *section else {
+        for (k, &[(v0, t0), (v1, t1)]) in sections.iter().enumerate() {
+            if v0 > v1 {
                 continue;
-            };
-            for across in g.lines_within(1, g.cells_along(1, v0), g.cells_along(1, v1)) {
-                let v = g.line(1, across);
+            }
+            let across = self.on_line(0, first[0] + k);
+            for line in g.lines_within(1, g.cells_along(1, v0), g.cells_along(1, v1)) {
+                let v = g.line(1, line);
                 if v0 < v && v < v1 {
                     let t = t0 + (v - v0) * ((t1 - t0) / (v1 - v0));
-                    self.add(self.on_line(0, first[0] + k), self.on_line(1, across), t);
+                    self.add(across, self.on_line(1, line), t);
                 }
             }
         }
@@ -527,7 +539,11 @@ impl CellHeights {
     /// The cells along grid axis k whose closed footprints hold the point `f` cells from the
     /// origin (never below it): cell f, and the one before where f lies on the line between.
     fn at(&self, k: usize, f: f64) -> Along {
-        let i = floor_index(f);
+        self.at_floor(k, floor_index(f), f)
+    }
+
+    /// [`CellHeights::at`] for `f` whose floor is `i`.
+    fn at_floor(&self, k: usize, i: usize, f: f64) -> Along {
         let on_line = index_to_f64(i) == f;
         self.place(k, i + 1 - usize::from(on_line), on_line)
     }
@@ -1037,6 +1053,7 @@ mod tests {
     use super::*;
     use crate::occluder::WorldBox;
     use crate::occluder::rectangle::{bit_rows, largest};
+    use crate::voxel::columns::column_hit;
 
     /// A box with a hollow, and a turned box through the shell and the hollow: winding numbers
     /// 0, 1 and 2, where parity and winding disagree.

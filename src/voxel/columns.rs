@@ -24,22 +24,32 @@ pub struct Crossing<F> {
 /// Where the vertical line through `p` meets triangle `tri`, if it does, at any float
 /// precision; the order of operations matches `column_hit` in shaders/common.wgsl.
 pub fn column_hit<F: Float>(tri: &[[F; 3]; 3], p: [F; 2]) -> Option<Crossing<F>> {
+    let ([w0, w1, w2], sign) = column_weights(tri, p)?;
+    let total = w0 + w1 + w2;
+    let z = if total != F::zero() {
+        (w0 * tri[0][2] + w1 * tri[1][2] + w2 * tri[2][2]) / total
+    } else {
+        // The point sits on a vertex up to rounding; any corner height is right.
+        tri[0][2]
+    };
+    Some(Crossing { z, sign })
+}
+
+/// The sign of [`column_hit`]'s crossing, if the line meets the triangle, without its height:
+/// for counts of crossings.
+pub fn column_sign<F: Float>(tri: &[[F; 3]; 3], p: [F; 2]) -> Option<i8> {
+    column_weights(tri, p).map(|(_, sign)| sign)
+}
+
+/// The signed areas `p` makes with each edge, opposite each corner, and the side it lies on,
+/// where the line through `p` meets the triangle.
+fn column_weights<F: Float>(tri: &[[F; 3]; 3], p: [F; 2]) -> Option<([F; 3], i8)> {
     let q = tri.map(|v| [v[0], v[1]]);
     let w0 = edge_side(q[1], q[2], p);
     let w1 = edge_side(q[2], q[0], p);
     let w2 = edge_side(q[0], q[1], p);
     let s = w0.1;
-    if s == 0 || w1.1 != s || w2.1 != s {
-        return None;
-    }
-    let total = w0.0 + w1.0 + w2.0;
-    let z = if total != F::zero() {
-        (w0.0 * tri[0][2] + w1.0 * tri[1][2] + w2.0 * tri[2][2]) / total
-    } else {
-        // The point sits on a vertex up to rounding; any corner height is right.
-        tri[0][2]
-    };
-    Some(Crossing { z, sign: s })
+    (s != 0 && w1.1 == s && w2.1 == s).then_some(([w0.0, w1.0, w2.0], s))
 }
 
 /// The side of the directed edge a→b on which `p` lies: (the signed area, its sign with ties

@@ -641,6 +641,11 @@ struct PlaneCells {
     /// ran: all of them before it first runs.
     sweep: Option<([usize; 2], Sweep)>,
     dirty: Option<std::ops::Range<usize>>,
+    /// The longest run of cells open in both rows of each pair of rows next to each other
+    /// (pair u: rows u and u + 1; none past the last row), as [`runs_bound`] last read them,
+    /// and the pairs with a row where cells closed since: all of them before it first runs.
+    pair_runs: Vec<usize>,
+    stale_pairs: Option<std::ops::Range<usize>>,
 }
 
 /// The candidate planes of one axis grid, and which of them each gap holds.
@@ -683,6 +688,8 @@ impl Planes {
                 open_cells: 0,
                 sweep: None,
                 dirty: None,
+                pair_runs: vec![0; dims[0]],
+                stale_pairs: Some(0..dims[0]),
             })
             .collect();
         let mut all = Planes {
@@ -805,6 +812,13 @@ impl Planes {
             return;
         }
         plane.open_cells -= closed;
+        let pairs = u.saturating_sub(1)..u + 1;
+        plane.stale_pairs = Some(
+            plane
+                .stale_pairs
+                .take()
+                .map_or(pairs.clone(), |s| s.start.min(pairs.start)..s.end.max(pairs.end)),
+        );
         if let Some(([u0, _], _)) = plane.sweep {
             let row = u - u0;
             plane.dirty = Some(
@@ -891,21 +905,24 @@ impl Planes {
 /// as long as its width: so it fits under the histogram of those runs, one a pair of rows,
 /// whose largest rectangle the stack method finds (a rectangle over k pairs spans k + 1
 /// rows). Much tighter than a count of the cells once a taken rectangle has cut them apart,
-/// at a fraction of a search's cost.
-fn runs_bound(open: &[u64], row_words: usize, stack: &mut Vec<(usize, usize)>) -> usize {
+/// at a fraction of a search's cost. `pair_runs` are the runs ([`PlaneCells::pair_runs`]),
+/// read again from `open` over the pairs `stale`, as only those changed.
+fn runs_bound(
+    open: &[u64],
+    row_words: usize,
+    (pair_runs, stale): (&mut [usize], std::ops::Range<usize>),
+    stack: &mut Vec<(usize, usize)>,
+) -> usize {
     const _: () = assert!(MIN_SIDE >= 2, "a rectangle spans a pair of rows");
+    let rows = pair_runs.len();
+    for u in stale.start..stale.end.min(rows.saturating_sub(1)) {
+        let (upper, lower) = (&open[u * row_words..], &open[(u + 1) * row_words..]);
+        pair_runs[u] = longest_run(upper[..row_words].iter().zip(lower).map(|(a, b)| a & b));
+    }
     stack.clear();
-    let rows = open.len() / row_words;
     let mut best = 0;
-    // Pair u is rows u and u + 1; the one past the last pair ends every rectangle.
-    for u in 0..rows {
-        let run = match u + 1 < rows {
-            true => {
-                let (upper, lower) = (&open[u * row_words..], &open[(u + 1) * row_words..]);
-                longest_run(upper[..row_words].iter().zip(lower).map(|(a, b)| a & b))
-            }
-            false => 0,
-        };
+    // The one past the last pair, 0, ends every rectangle.
+    for (u, &run) in pair_runs.iter().enumerate() {
         // Where a rectangle as wide as this pair's run begins: the first pair of those it ends.
         let mut start = u;
         while let Some(&(first, width)) = stack.last() {
@@ -1001,7 +1018,9 @@ fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64, inset
         match candidates[top].state {
             Bound::Counted => {
                 let plane = &mut planes.list[top];
-                plane.bound = plane.bound.min(runs_bound(&plane.open, planes.row_words, &mut stack));
+                let stale = plane.stale_pairs.take().unwrap_or(0..0);
+                let runs = runs_bound(&plane.open, planes.row_words, (&mut plane.pair_runs, stale), &mut stack);
+                plane.bound = plane.bound.min(runs);
                 plane.state = Bound::Runs;
                 continue;
             }
@@ -1296,7 +1315,7 @@ mod tests {
     }
 
     #[test]
-    fn the_runs_open_in_pairs_of_rows_bound_the_largest_rectangle_and_meet_it_on_one() {
+    fn the_runs_open_in_pairs_of_rows_bound_the_largest_rectangle_meet_it_on_one_and_keep_as_cells_close() {
         let mut rng = fastrand::Rng::with_seed(5);
         let mut stack = Vec::new();
         for round in 0..400 {
@@ -1315,7 +1334,22 @@ mod tests {
                 );
             }
             let largest_cells = largest(&mask, nu, nv, MIN_SIDE).map_or(0, |r| r.cells());
-            assert!(runs_bound(&bits, row_words, &mut stack) >= largest_cells);
+            let bound =
+                |bits: &[u64], stack: &mut Vec<_>| runs_bound(bits, row_words, (&mut vec![0; nu], 0..nu), stack);
+            assert!(bound(&bits, &mut stack) >= largest_cells);
+            // Cells closed in one row: the runs read again over the pairs holding that row
+            // alone are those read afresh, and so is the bound.
+            let mut runs = vec![0; nu];
+            runs_bound(&bits, row_words, (&mut runs, 0..nu), &mut stack);
+            let mut closed = bits.clone();
+            let u = rng.usize(0..nu);
+            closed[u * row_words..(u + 1) * row_words]
+                .iter_mut()
+                .for_each(|w| *w &= rng.u64(..));
+            let again = runs_bound(&closed, row_words, (&mut runs, u.saturating_sub(1)..u + 1), &mut stack);
+            let mut fresh = vec![0; nu];
+            assert_eq!(again, runs_bound(&closed, row_words, (&mut fresh, 0..nu), &mut stack));
+            assert_eq!(runs, fresh);
             // One rectangle alone, at least two rows high: the bound is its cells.
             if nu < MIN_SIDE {
                 continue;
@@ -1329,7 +1363,7 @@ mod tests {
             for (u, v) in rect.iter() {
                 one[u * nv + v] = true;
             }
-            assert_eq!(runs_bound(&bit_rows(&one, nu, nv), row_words, &mut stack), rect.cells());
+            assert_eq!(bound(&bit_rows(&one, nu, nv), &mut stack), rect.cells());
         }
     }
 }

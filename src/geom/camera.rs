@@ -89,15 +89,21 @@ impl View {
 
     /// [`View::project`] of each point, with the lens's constants worked out once.
     pub fn project_all(&self, points: impl Iterator<Item = DVec3>) -> Vec<DVec3> {
+        let mut projected = Vec::new();
+        self.project_into(points, &mut projected);
+        projected
+    }
+
+    /// [`View::project_all`] into `projected`, whose room is kept from call to call.
+    pub fn project_into(&self, points: impl Iterator<Item = DVec3>, projected: &mut Vec<DVec3>) {
         let half = self.pixels as f64 / 2.0;
+        projected.clear();
         match self.lens {
             Lens::Orthographic { center, radius } => {
                 let scale = half / radius;
-                points
-                    .map(|p| self.project_orthographic(p, center, radius, scale))
-                    .collect()
+                projected.extend(points.map(|p| self.project_orthographic(p, center, radius, scale)))
             }
-            Lens::Perspective { eye } => points.map(|p| self.project_perspective(p, eye, half)).collect(),
+            Lens::Perspective { eye } => projected.extend(points.map(|p| self.project_perspective(p, eye, half))),
         }
     }
 

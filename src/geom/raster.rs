@@ -637,37 +637,73 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
 /// Calls `visit(pixel index, depth)` for every pixel centre each triangle of `mesh` covers.
 /// Each vertex is projected once.
 pub fn rasterize_mesh(view: &View, mesh: &Mesh, visit: impl FnMut(usize, f64)) {
-    fill_mesh(view, mesh, |_| [false; 3], &mut EachPixel(visit));
+    fill_plain(view, mesh, &mut EachPixel(visit));
 }
 
 /// Draws `mesh` over `depth`, a depth image of `view`, where triangle t's edge k (from corner
 /// k + 1 to corner k + 2) flagged in `eroded[t]` leaves out the pixels whose square it crosses:
 /// where a crack narrower than a pixel runs along that edge, the pixel sees what lies behind.
 pub fn draw_eroded(view: &View, mesh: &Mesh, eroded: &[[bool; 3]], depth: &mut [f32]) {
-    fill_mesh(view, mesh, |t| eroded[t], &mut Nearest(depth));
+    fill_mesh(
+        view,
+        mesh,
+        |t| eroded[t],
+        &mut Nearest(depth),
+        &mut DrawBuffers::default(),
+    );
+}
+
+/// What drawing a mesh works out for each of its vertices: where the view projects it, and
+/// its place among the pixel centres. A caller drawing many small meshes keeps them from draw
+/// to draw, so that no draw allocates them again.
+#[derive(Default)]
+pub struct DrawBuffers {
+    projected: Vec<DVec3>,
+    places: Vec<CentrePlaces>,
 }
 
 /// The pixel centres triangle t of `mesh` covers, less those whose squares the edges flagged
 /// in `eroded(t)` cross ([`Coverage::Eroded`]), into any [`Pixels`], every vertex projected once.
-fn fill_mesh(view: &View, mesh: &Mesh, eroded: impl Fn(usize) -> [bool; 3], visit: &mut impl Pixels) {
-    let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
-    fill_triangles(view, (mesh, &projected), 0..mesh.triangles.len(), eroded, visit);
+fn fill_mesh(
+    view: &View,
+    mesh: &Mesh,
+    eroded: impl Fn(usize) -> [bool; 3],
+    visit: &mut impl Pixels,
+    buffers: &mut DrawBuffers,
+) {
+    view.project_into(mesh.positions.iter().map(|p| p.as_dvec3()), &mut buffers.projected);
+    let triangles = 0..mesh.triangles.len();
+    fill_triangles(
+        view,
+        (mesh, &buffers.projected),
+        triangles,
+        eroded,
+        visit,
+        &mut buffers.places,
+    );
+}
+
+/// [`fill_mesh`] with no edge eroded, in buffers of its own.
+fn fill_plain(view: &View, mesh: &Mesh, visit: &mut impl Pixels) {
+    fill_mesh(view, mesh, |_| [false; 3], visit, &mut DrawBuffers::default());
 }
 
 /// [`fill_mesh`] of the triangles `triangles` (indices into the mesh's) alone, with the mesh's
-/// vertices `projected` by the view.
+/// vertices `projected` by the view; `places` is room for their places among the centres.
 fn fill_triangles(
     view: &View,
     (mesh, projected): (&Mesh, &[DVec3]),
     triangles: impl Iterator<Item = usize>,
     eroded: impl Fn(usize) -> [bool; 3],
     visit: &mut impl Pixels,
+    places: &mut Vec<CentrePlaces>,
 ) {
     match view.lens {
         Lens::Orthographic { .. } => {
             // Most triangles of a detailed mesh cover no pixel centre: their corners' places
             // among the centres, found once a vertex, leave them out by integer compares.
-            let places: Vec<CentrePlaces> = projected.iter().map(|q| CentrePlaces::of(q, view.pixels)).collect();
+            places.clear();
+            places.extend(projected.iter().map(|q| CentrePlaces::of(q, view.pixels)));
             // In AVX2's wider lanes where the CPU has them.
             with_avx2(|| {
                 for t in triangles {
@@ -757,7 +793,7 @@ pub fn depth_image(view: &View, mesh: &Mesh) -> Vec<f32> {
 pub fn draw_depth(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) {
     depth.clear();
     depth.resize(view.pixels * view.pixels, f32::INFINITY);
-    fill_mesh(view, mesh, |_| [false; 3], &mut Nearest(depth));
+    fill_plain(view, mesh, &mut Nearest(depth));
 }
 
 /// Draws the triangles `kept` (indices into the mesh's) over `depth`, a depth image of `view`,
@@ -768,7 +804,14 @@ pub fn draw_depth_of(
     kept: impl Iterator<Item = usize>,
     depth: &mut [f32],
 ) {
-    fill_triangles(view, (mesh, projected), kept, |_| [false; 3], &mut Nearest(depth));
+    fill_triangles(
+        view,
+        (mesh, projected),
+        kept,
+        |_| [false; 3],
+        &mut Nearest(depth),
+        &mut Vec::new(),
+    );
 }
 
 /// [`draw_depth`] for a perspective view that many surfaces lie across, one behind another (a
@@ -943,7 +986,7 @@ pub fn coverage_mask(view: &View, mesh: &Mesh, open: Option<&[bool]>) -> Vec<u64
     let mut mask = vec![0u64; (view.pixels * view.pixels).div_ceil(64)];
     let bits = &mut Bits::new(&mut mask);
     match open {
-        None => fill_mesh(view, mesh, |_| [false; 3], bits),
+        None => fill_plain(view, mesh, bits),
         Some(open) => {
             let projected = view.project_all(mesh.positions.iter().map(|p| p.as_dvec3()));
             let anticlockwise = |t: usize| {
@@ -951,17 +994,18 @@ pub fn coverage_mask(view: &View, mesh: &Mesh, open: Option<&[bool]>) -> Vec<u64
                 cross(q[1] - q[0], q[2] - q[0]) > 0.0
             };
             let drawn = (0..mesh.triangles.len()).filter(|&t| open[t] || anticlockwise(t));
-            fill_triangles(view, (mesh, &projected), drawn, |_| [false; 3], bits);
+            fill_triangles(view, (mesh, &projected), drawn, |_| [false; 3], bits, &mut Vec::new());
         }
     }
     mask
 }
 
 /// Sets the bits of `mask` (one bit per pixel) for the pixels `mesh` covers; returns the words
-/// drawn, from the first to one past the last (empty when none).
-pub fn draw_coverage(view: &View, mesh: &Mesh, mask: &mut [u64]) -> std::ops::Range<usize> {
+/// drawn, from the first to one past the last (empty when none). `buffers` may be any kept from
+/// an earlier draw.
+pub fn draw_coverage(view: &View, mesh: &Mesh, mask: &mut [u64], buffers: &mut DrawBuffers) -> std::ops::Range<usize> {
     let mut bits = Bits::new(mask);
-    fill_mesh(view, mesh, |_| [false; 3], &mut bits);
+    fill_mesh(view, mesh, |_| [false; 3], &mut bits, buffers);
     bits.first.min(bits.end)..bits.end
 }
 
@@ -1225,7 +1269,7 @@ mod tests {
             assert_eq!(by_runs, one_by_one);
             set += by_runs.iter().map(|w| w.count_ones()).sum::<u32>();
             // The words drawn are those from the first set to the last.
-            let drawn = draw_coverage(&view, &mesh, &mut by_runs);
+            let drawn = draw_coverage(&view, &mesh, &mut by_runs, &mut DrawBuffers::default());
             let first = one_by_one.iter().position(|&w| w != 0).unwrap();
             let last = one_by_one.iter().rposition(|&w| w != 0).unwrap();
             assert_eq!(drawn, first..last + 1);

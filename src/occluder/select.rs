@@ -5,7 +5,7 @@
 
 use super::{WorldBox, merge::merge};
 use crate::geom::camera::{View, fibonacci_sphere};
-use crate::geom::raster::{coverage_mask, draw_coverage};
+use crate::geom::raster::{DrawBuffers, coverage_mask, draw_coverage};
 use crate::geom::with_popcnt;
 use crate::mesh::Mesh;
 use rayon::prelude::*;
@@ -87,15 +87,21 @@ pub fn select(
     let words: usize = silhouettes.iter().map(Vec::len).sum();
     // masks[candidate]: the silhouette pixels it covers, one bit each, all views end to end,
     // as its nonzero words: a piece covers a small part of the silhouette.
+    // One view's bits at a time, cleared after over the words drawn; with what drawing works
+    // out for each vertex, kept from shape to shape.
+    let room = || {
+        (
+            vec![0u64; silhouettes.first().map_or(0, Vec::len)],
+            DrawBuffers::default(),
+        )
+    };
     let masks: Vec<SparseMask> = shapes
         .par_iter()
-        .map(|shape| {
-            // One view's bits at a time, cleared after over the words drawn.
-            let mut image = vec![0u64; silhouettes.first().map_or(0, Vec::len)];
+        .map_init(room, |(image, buffers), shape| {
             let mut offset = 0;
             let mut mask = Vec::new();
             for (v, s) in views.iter().zip(silhouettes) {
-                for w in draw_coverage(v, shape, &mut image) {
+                for w in draw_coverage(v, shape, image, buffers) {
                     if image[w] & s[w] != 0 {
                         mask.push(((offset + w) as u32, image[w] & s[w]));
                     }

@@ -815,21 +815,9 @@ impl Planes {
             return;
         }
         plane.open_cells -= closed;
-        let pairs = u.saturating_sub(1)..u + 1;
-        plane.stale_pairs = Some(
-            plane
-                .stale_pairs
-                .take()
-                .map_or(pairs.clone(), |s| s.start.min(pairs.start)..s.end.max(pairs.end)),
-        );
+        widen(&mut plane.stale_pairs, u.saturating_sub(1)..u + 1);
         if let Some(([u0, _], _)) = plane.sweep {
-            let row = u - u0;
-            plane.dirty = Some(
-                plane
-                    .dirty
-                    .take()
-                    .map_or(row..row + 1, |d| d.start.min(row)..d.end.max(row + 1)),
-            );
+            widen(&mut plane.dirty, u - u0..u - u0 + 1);
         }
         // A runs bound still holds, but one over the cells open now may be lower.
         if in_best || plane.state == Bound::Runs {
@@ -966,6 +954,15 @@ fn longest_run(words: impl Iterator<Item = u64>) -> usize {
         longest = longest.max(current);
     }
     longest
+}
+
+/// Widens `range` to hold `by` too, or sets it to `by` where it is None.
+fn widen(range: &mut Option<std::ops::Range<usize>>, by: std::ops::Range<usize>) {
+    *range = Some(
+        range
+            .take()
+            .map_or(by.clone(), |r| r.start.min(by.start)..r.end.max(by.end)),
+    );
 }
 
 /// The bits, of a word of a row whose first column is `first`, of the columns before `v`.

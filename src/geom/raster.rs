@@ -662,6 +662,14 @@ pub struct DrawBuffers {
     places: Vec<CentrePlaces>,
 }
 
+impl DrawBuffers {
+    /// `mesh`'s vertices as `view` projects them, kept for the draw that follows.
+    pub fn project(&mut self, view: &View, mesh: &Mesh) -> &[DVec3] {
+        view.project_into(mesh.positions.iter().map(|p| p.as_dvec3()), &mut self.projected);
+        &self.projected
+    }
+}
+
 /// The pixel centres triangle t of `mesh` covers, less those whose squares the edges flagged
 /// in `eroded(t)` cross ([`Coverage::Eroded`]), into any [`Pixels`], every vertex projected once.
 fn fill_mesh(
@@ -671,7 +679,7 @@ fn fill_mesh(
     visit: &mut impl Pixels,
     buffers: &mut DrawBuffers,
 ) {
-    view.project_into(mesh.positions.iter().map(|p| p.as_dvec3()), &mut buffers.projected);
+    buffers.project(view, mesh);
     let triangles = 0..mesh.triangles.len();
     fill_triangles(
         view,
@@ -797,20 +805,21 @@ pub fn draw_depth(view: &View, mesh: &Mesh, depth: &mut Vec<f32>) {
 }
 
 /// Draws the triangles `kept` (indices into the mesh's) over `depth`, a depth image of `view`,
-/// with the mesh's vertices `projected` by the view ([`View::project_all`]).
+/// with the mesh's vertices as [`DrawBuffers::project`] last projected them into `buffers`.
 pub fn draw_depth_of(
     view: &View,
-    (mesh, projected): (&Mesh, &[DVec3]),
+    mesh: &Mesh,
     kept: impl Iterator<Item = usize>,
     depth: &mut [f32],
+    buffers: &mut DrawBuffers,
 ) {
     fill_triangles(
         view,
-        (mesh, projected),
+        (mesh, &buffers.projected),
         kept,
         |_| [false; 3],
         &mut Nearest(depth),
-        &mut Vec::new(),
+        &mut buffers.places,
     );
 }
 

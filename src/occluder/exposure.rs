@@ -35,7 +35,9 @@ use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::grid_counts::GridCounts;
 use crate::geom::meshlets::{Meshlet, line_blocked, meshlets};
 use crate::geom::proximity::SurfaceIndex;
-use crate::geom::raster::{self, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within};
+use crate::geom::raster::{
+    self, DrawBuffers, draw_depth, draw_depth_nearest_first, draw_eroded, rasterize, rasterize_within,
+};
 use crate::geom::{clamped_index, greater, with_avx2};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::{BoundaryEdge, Mesh, point_bounds};
@@ -204,7 +206,7 @@ fn draw_sky(
                 .for_each(|((v, (out, view)), mut image)| finish(v, view, &mut image, out));
         }
         None => out.for_each_init(
-            || (Vec::new(), Vec::new()),
+            || (Vec::new(), Kept::default()),
             |(image, kept), (v, (out, view))| {
                 match windows {
                     Some(windows) => draw_in_window(view, meshlets, &windows[v], (image, kept)),
@@ -262,11 +264,13 @@ impl RectangleCells {
 
 /// A sky view's depth image, in `image`, drawn right in the tiles of its `window`: of the
 /// meshlets whose bounds meet the window grown by a pixel, the triangles whose bounds do.
-/// Elsewhere it may miss what lies there.
-fn draw_in_window(view: &View, meshlets: &[Meshlet], window: &[bool], (image, kept): (&mut Vec<f32>, &mut Vec<u32>)) {
+/// Elsewhere it may miss what lies there. `kept` is room for the triangles kept of a meshlet,
+/// and for its vertices as the view projects them.
+fn draw_in_window(view: &View, meshlets: &[Meshlet], window: &[bool], (image, kept): (&mut Vec<f32>, &mut Kept)) {
     image.clear();
     image.resize(PIXELS * PIXELS, f32::INFINITY);
     let window = WindowTiles::new(window);
+    let (triangles_kept, buffers) = kept;
     for meshlet in meshlets {
         // Sky views are orthographic; any other view's meshlets are tested triangle by triangle.
         let meets = view
@@ -275,25 +279,24 @@ fn draw_in_window(view: &View, meshlets: &[Meshlet], window: &[bool], (image, ke
         if meets == Meets::None {
             continue;
         }
-        let projected = view.project_all(meshlet.mesh.positions.iter().map(|p| p.as_dvec3()));
+        let projected = buffers.project(view, &meshlet.mesh);
         let triangles = &meshlet.mesh.triangles;
         if meets == Meets::Whole {
-            raster::draw_depth_of(view, (&meshlet.mesh, &projected), 0..triangles.len(), image);
+            raster::draw_depth_of(view, &meshlet.mesh, 0..triangles.len(), image, buffers);
             continue;
         }
-        kept.clear();
-        kept.extend((0..triangles.len() as u32).filter(|&t| {
+        triangles_kept.clear();
+        triangles_kept.extend((0..triangles.len() as u32).filter(|&t| {
             let (lo, hi) = point_bounds(triangles[t as usize].map(|i| projected[i as usize]));
             window.meets(lo, hi) != Meets::None
         }));
-        raster::draw_depth_of(
-            view,
-            (&meshlet.mesh, &projected),
-            kept.iter().map(|&t| t as usize),
-            image,
-        );
+        let kept = triangles_kept.iter().map(|&t| t as usize);
+        raster::draw_depth_of(view, &meshlet.mesh, kept, image, buffers);
     }
 }
+
+/// Room [`draw_in_window`] keeps from view to view.
+type Kept = (Vec<u32>, DrawBuffers);
 
 /// How much of a window the tiles that a rectangle of the image may fall in hold.
 #[derive(Clone, Copy, PartialEq)]
@@ -1829,7 +1832,7 @@ mod tests {
             .map(|k| rng.f32() < 0.1 || (k / tiles < 8 && k % tiles < 8))
             .collect();
         let (center, radius) = mesh.bounding_sphere();
-        let (mut image, mut kept) = (Vec::new(), Vec::new());
+        let (mut image, mut kept) = (Vec::new(), Kept::default());
         let mut drawn = 0;
         for dir in fibonacci_sphere(12) {
             let view = View::new(dir, center, radius, PIXELS);

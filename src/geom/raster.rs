@@ -931,8 +931,8 @@ impl Tiles {
         true
     }
 
-    /// The farthest depth of tile (tx, ty) of `depth`, or 0 if farther: a whole tile a column
-    /// of lanes at a time.
+    /// The farthest depth of tile (tx, ty) of `depth`, or 0 where every depth is nearer: each
+    /// row of a whole tile taken in lanes.
     fn farthest_of(&self, depth: &[f32], tx: usize, ty: usize) -> f32 {
         let n = self.n;
         let rows = ty * CULL_TILE..((ty + 1) * CULL_TILE).min(n);

@@ -2,9 +2,10 @@
 //! they alone cover the silhouette), voxelize, classify, expand boxes, refine, find quads and
 //! patches, select by silhouette, merge, and optionally evaluate.
 //!
-//! [`cook_with_progress`] and `cook_voxels` are the list of stages; each is a function from
-//! named inputs to a named output, and `Run` times it, reports its progress and, for a stage
-//! with a GPU twin, falls back to the CPU where the device cannot do it.
+//! [`cook_with_progress`], `cook_closed`, `cook_voxels` and `select_and_finish` are the list of
+//! stages; each is a function from named inputs to a named output, and `Run` times it, reports
+//! its progress and, for a stage with a GPU twin, falls back to the CPU where the device cannot
+//! do it.
 
 mod report;
 
@@ -109,7 +110,7 @@ pub fn cook_with_progress(
     // The key is of the mesh as given, which orient changes: of a copy, beside the stages that
     // are mostly serial, and dropped once the key is found.
     let given = mesh.clone();
-    let ((topology, input, openings, (pieces, silhouettes)), (key, key_ms)) = run.beside(
+    let ((topology, input, openings, ahead), (key, key_ms)) = run.beside(
         move || cache_key(&given, cook),
         |run| {
             let given_triangles = mesh.triangles.len();
@@ -117,29 +118,13 @@ pub fn cook_with_progress(
             run.note_duplicates(topology.duplicate_triangles);
             let input = InputReport::new(given_triangles, ingest, &topology);
             let openings = run.close_openings(&mut mesh, &mut topology, cook.smallest_hole)?;
-            let find_pieces = |run: &mut Run| {
-                run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
-                    find_surface_pieces(&mesh, &topology)
-                })
+            let ahead = match closed_quads(&topology, cook) {
+                Some(solid) => Ahead::Quads(solid),
+                None => Ahead::Pieces(surface_pieces_of(run, &mesh, &topology, cook)?),
             };
-            // Whichever way an open mesh goes, its selection weighs pieces against the same
-            // silhouettes: drawn beside the surface pieces, which are found mostly serially.
-            let pieces = match topology.boundary.is_empty() {
-                true => (find_pieces(run)?, None),
-                false => {
-                    let (pieces, found) =
-                        run.beside(|| Silhouettes::new(&mesh, &topology.open_triangles), find_pieces)?;
-                    (pieces, Some(found))
-                }
-            };
-            Ok((topology, input, openings, pieces))
+            Ok((topology, input, openings, ahead))
         },
     )?;
-    run.heard("key", key_ms)?;
-    // A GPU asked for must be there, even where the surface alone makes the occluder.
-    if cook.device == gpu::DeviceChoice::Gpu {
-        run.open_device(cook.device, None)?;
-    }
     let prepared = Prepared {
         mesh,
         topology,
@@ -147,6 +132,15 @@ pub fn cook_with_progress(
         input,
         openings,
     };
+    let (pieces, silhouettes) = match ahead {
+        Ahead::Quads(solid) => return cook_closed(run, &prepared, key_ms, solid, settings, with_eval),
+        Ahead::Pieces(pieces) => pieces,
+    };
+    run.heard("key", key_ms)?;
+    // A GPU asked for must be there, even where the surface alone makes the occluder.
+    if cook.device == gpu::DeviceChoice::Gpu {
+        run.open_device(cook.device, None)?;
+    }
     // Low-poly and flat-shaded open art: its own surface may leave the voxel stages, and their
     // costly exposure test, nothing to add. A closed mesh has no exposure test, and its in-solid
     // quads sit behind its surface, where a runtime can cull what touches the wall's far side.
@@ -169,7 +163,42 @@ pub fn cook_with_progress(
             let parts = VoxelParts::skipped(fit_grid(&prepared.mesh, cook.resolution));
             finish(run, &prepared, parts, (occluder, chosen), settings, with_eval)
         }
-        None => cook_voxels(run, &prepared, &pieces, silhouettes, settings, with_eval),
+        None => cook_voxels(run, &prepared, pieces, silhouettes, settings, with_eval),
+    }
+}
+
+/// What a cook finds beside its key, once the mesh is oriented.
+enum Ahead {
+    /// Nothing yet: a closed mesh's quads, which its own crossings decide, are found beside
+    /// everything else up to the selection, the surface pieces included ([`cook_closed`]).
+    Quads(quads::Solid<'static>),
+    /// The surface pieces, with an open mesh's silhouettes.
+    Pieces(SurfacePieces),
+}
+
+/// The surface pieces, and the silhouettes drawn beside them, with their milliseconds.
+type SurfacePieces = (Vec<SurfacePiece>, Option<(Silhouettes, f64)>);
+
+/// Finds the surface pieces, and an open mesh's silhouettes beside them: whichever way an open
+/// mesh goes, its selection weighs pieces against the same silhouettes, and the pieces are
+/// found mostly serially.
+fn surface_pieces_of(
+    run: &mut Run,
+    mesh: &Mesh,
+    topology: &Topology,
+    cook: &CookSettings,
+) -> Result<SurfacePieces, CookError> {
+    let find_pieces = |run: &mut Run| {
+        run.kind_stage(cook.shapes.contains(&Shape::Surface), "surface-pieces", || {
+            find_surface_pieces(mesh, topology)
+        })
+    };
+    match topology.boundary.is_empty() {
+        true => Ok((find_pieces(run)?, None)),
+        false => {
+            let (pieces, found) = run.beside(|| Silhouettes::new(mesh, &topology.open_triangles), find_pieces)?;
+            Ok((pieces, Some(found)))
+        }
     }
 }
 
@@ -229,11 +258,43 @@ impl VoxelParts {
     }
 }
 
-/// The voxel stages and the selection over everything they found and the surface pieces.
+/// A closed mesh's cook with quads: the surface pieces and the voxel stages beside the quads.
+fn cook_closed(
+    mut run: Run,
+    prepared: &Prepared,
+    key_ms: f64,
+    solid: quads::Solid<'static>,
+    settings: &Settings,
+    with_eval: bool,
+) -> Result<Cooked, CookError> {
+    let cook = &settings.cook;
+    let (mesh, topology) = (&prepared.mesh, &prepared.topology);
+    let grid = fit_grid(mesh, cook.resolution);
+    let ((pieces, voxels), (quads, ms)) = run.beside(
+        || quads::find(mesh, cook.quad_grid, solid),
+        |run| {
+            let (pieces, _) = surface_pieces_of(run, mesh, topology, cook)?;
+            run.heard("key", key_ms)?;
+            run.open_device(cook.device, Some(cook_size(prepared, &grid)))?;
+            Ok((pieces, voxel_stages(run, prepared, &grid, None, cook)?))
+        },
+    )?;
+    run.heard("quads", ms)?;
+    let found = Found {
+        grid,
+        pieces,
+        voxels,
+        quads,
+        patches: None,
+    };
+    select_and_finish(run, prepared, found, settings, with_eval)
+}
+
+/// The voxel stages, with the patches beside them, then the quads their inner voxels hold.
 fn cook_voxels(
     mut run: Run,
     prepared: &Prepared,
-    pieces: &[SurfacePiece],
+    pieces: Vec<SurfacePiece>,
     silhouettes: Option<(Silhouettes, f64)>,
     settings: &Settings,
     with_eval: bool,
@@ -242,34 +303,60 @@ fn cook_voxels(
     let uses = |shape: Shape| cook.shapes.contains(&shape);
     let (mesh, topology) = (&prepared.mesh, &prepared.topology);
     let grid = fit_grid(mesh, cook.resolution);
-    let size = gpu::CookSize {
+    run.open_device(cook.device, Some(cook_size(prepared, &grid)))?;
+    let (voxels, (patches, ms)) = run.beside(
+        || uses(Shape::Patches).then(|| find_patches(mesh, topology, cook)),
+        |run| voxel_stages(run, prepared, &grid, silhouettes, cook),
+    )?;
+    let quads = run.kind_stage(uses(Shape::Quads), "quads", || {
+        find_quads(mesh, &grid, &voxels.inner, cook)
+    })?;
+    let found = Found {
+        grid,
+        pieces,
+        voxels,
+        quads,
+        patches: patches.map(|patches| (patches, ms)),
+    };
+    select_and_finish(run, prepared, found, settings, with_eval)
+}
+
+/// The size of a cook's voxel stages, which decides where they run.
+fn cook_size(prepared: &Prepared, grid: &Grid) -> gpu::CookSize {
+    gpu::CookSize {
         voxels: grid.len(),
-        triangles: mesh.triangles.len(),
-        open: !topology.boundary.is_empty(),
-    };
-    run.open_device(cook.device, Some(size))?;
-    // Stages that need nothing the voxel stages make are found beside them: the quads of a
-    // closed mesh, which its own crossings decide, and an open mesh's patches.
-    let (voxels, quads_found, patches_found) = match closed_solid(topology, cook).filter(|_| uses(Shape::Quads)) {
-        Some(solid) => {
-            let (voxels, (quads, ms)) = run.beside(
-                || quads::find(mesh, cook.quad_grid, solid),
-                |run| voxel_stages(run, prepared, &grid, silhouettes, cook),
-            )?;
-            run.heard("quads", ms)?;
-            (voxels, quads, None)
-        }
-        None => {
-            let (voxels, (patches, ms)) = run.beside(
-                || uses(Shape::Patches).then(|| find_patches(mesh, topology, cook)),
-                |run| voxel_stages(run, prepared, &grid, silhouettes, cook),
-            )?;
-            let quads = run.kind_stage(uses(Shape::Quads), "quads", || {
-                find_quads(mesh, &grid, &voxels.inner, cook)
-            })?;
-            (voxels, quads, patches.map(|patches| (patches, ms)))
-        }
-    };
+        triangles: prepared.mesh.triangles.len(),
+        open: !prepared.topology.boundary.is_empty(),
+    }
+}
+
+/// What the stages before the selection found: on the voxel grid, the surface pieces, the voxel
+/// stages' parts, the quads, and the patches found beside them, with their milliseconds.
+struct Found {
+    grid: Grid,
+    pieces: Vec<SurfacePiece>,
+    voxels: VoxelStages,
+    quads: Vec<Panel>,
+    patches: Option<(Vec<Panel>, f64)>,
+}
+
+/// The selection over everything found, then the report.
+fn select_and_finish(
+    mut run: Run,
+    prepared: &Prepared,
+    found: Found,
+    settings: &Settings,
+    with_eval: bool,
+) -> Result<Cooked, CookError> {
+    let Found {
+        grid,
+        pieces,
+        voxels,
+        quads: quads_found,
+        patches: patches_found,
+    } = found;
+    let (mesh, topology, cook) = (&prepared.mesh, &prepared.topology, &settings.cook);
+    let uses = |shape: Shape| cook.shapes.contains(&shape);
     let quad_count = quads_found.len();
     let (mut panels, quads_shown) = match &voxels.open_views {
         None => (quads_found, [0, 0]),
@@ -284,7 +371,14 @@ fn cook_voxels(
     });
     // Selection merges as it goes; its last merge is the solid part of the occluder.
     let (occluder, chosen) = run.stage("select+merge", || {
-        select_pieces(&voxels.silhouettes, mesh, &voxels.box_candidates, &panels, pieces, cook)
+        select_pieces(
+            &voxels.silhouettes,
+            mesh,
+            &voxels.box_candidates,
+            &panels,
+            &pieces,
+            cook,
+        )
     })?;
     let inner_count = voxels.inner.iter().filter(|&&v| v).count();
     let exposed = [voxels.exposed_voxels, voxels.exposed_boxes, quads_shown[0]];
@@ -518,12 +612,16 @@ fn unexposed_boxes(views: &OpenViews, candidates: Vec<(usize, WorldBox, WorldBox
 }
 
 /// A closed surface's crossings decide exactly whether a quad lies inside, under winding or
-/// parity. None where the voxels decide ([`find_quads`]).
-fn closed_solid(topology: &Topology, cook: &CookSettings) -> Option<quads::Solid<'static>> {
+/// parity. None where the voxels decide ([`find_quads`]) or no quads are asked for.
+fn closed_quads(topology: &Topology, cook: &CookSettings) -> Option<quads::Solid<'static>> {
     match cook.inside {
-        InsideMethod::Winding | InsideMethod::Parity if topology.boundary.is_empty() => Some(quads::Solid::Closed {
-            parity: cook.inside == InsideMethod::Parity,
-        }),
+        InsideMethod::Winding | InsideMethod::Parity
+            if topology.boundary.is_empty() && cook.shapes.contains(&Shape::Quads) =>
+        {
+            Some(quads::Solid::Closed {
+                parity: cook.inside == InsideMethod::Parity,
+            })
+        }
         _ => None,
     }
 }
@@ -1001,9 +1099,19 @@ mod tests {
     }
 
     #[test]
-    fn quads_found_beside_the_voxel_stages_are_reported_in_their_place() {
+    fn quads_found_beside_the_surface_pieces_and_voxel_stages_are_reported_in_their_place() {
         let (stages, r) = heard_stages(crate::mesh::shapes::torus(1.0, 0.45, 32, 16));
-        in_order(&stages, &["surface", "refine", "silhouettes", "quads", "select+merge"]);
+        let order = [
+            "orient",
+            "surface-pieces",
+            "key",
+            "surface",
+            "refine",
+            "silhouettes",
+            "quads",
+            "select+merge",
+        ];
+        in_order(&stages, &order);
         assert!(r.occluder.quads > 0 && r.timings_ms.get("quads") > 0.0, "{r:?}");
         // Wall time: the ingest it was given, and the stages after.
         assert!(r.cook_ms > 2.0 && r.total_ms() == r.cook_ms, "{}", r.cook_ms);

@@ -23,7 +23,7 @@ use crate::mesh::{Mesh, point_bounds};
 use crate::voxel::columns::column_sign;
 use glam::{DMat3, DQuat, DVec3};
 use rayon::prelude::*;
-use std::cmp::Ordering;
+use std::cmp::{Ordering, Reverse};
 use std::collections::HashMap;
 use std::f64::consts::FRAC_PI_4;
 
@@ -151,11 +151,13 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
     let passes: Vec<(DQuat, usize)> = frames.iter().flat_map(|&f| (0..3).map(move |axis| (f, axis))).collect();
     let (world_lo, world_hi) = mesh.bounds();
     let inset = f32_slack(world_lo.as_dvec3(), world_hi.as_dvec3());
-    // Each pass's gaps, then its rectangles: the searches, serial within a pass, are shared out
-    // once all gaps are found, so that no thread waits long for the last.
-    let found: Vec<_> = passes
+    // Each pass's gaps and planes, then its rectangles: the searches, serial within a pass, are
+    // shared out once all gaps are found, those with the most open cells first, as they mostly
+    // take longest: a thread that ends one takes the next, and none waits long for the last.
+    let mut found: Vec<(usize, AxisGrid, Gaps, Planes)> = passes
         .par_iter()
-        .filter_map(|&(turn, axis)| {
+        .enumerate()
+        .filter_map(|(pass, &(turn, axis))| {
             let (lo, hi) = point_bounds(mesh.positions.iter().map(|p| turn * p.as_dvec3()));
             let size = (hi - lo).max_element();
             let cell = size / grid as f64;
@@ -181,14 +183,23 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
                 Solid::Closed { .. } => None,
             };
             let gaps = inside_gaps(mesh, &corners, &g, margin, solid, reach.as_ref());
-            let planes = candidate_planes(&gaps, lo[axis], hi[axis], cell);
-            Some((g, gaps, planes, margin))
+            let planes = Planes::new(
+                &gaps,
+                &candidate_planes(&gaps, lo[axis], hi[axis], cell),
+                margin,
+                g.dims,
+            );
+            Some((pass, g, gaps, planes))
         })
         .collect();
-    found
-        .par_iter()
-        .flat_map_iter(|(g, gaps, planes, margin)| best_rectangles(g, gaps, planes, *margin, inset))
-        .collect()
+    found.sort_by_key(|(_, _, _, planes)| Reverse(planes.open_cells()));
+    let mut by_pass: Vec<(usize, Vec<Panel>)> = found
+        .into_iter()
+        .par_bridge()
+        .map(|(pass, g, gaps, planes)| (pass, best_rectangles(&g, &gaps, planes, inset)))
+        .collect();
+    by_pass.sort_unstable_by_key(|&(pass, _)| pass);
+    by_pass.into_iter().flat_map(|(_, quads)| quads).collect()
 }
 
 /// The cells of an axis grid whose centre lines meet any of some world boxes, give or take a
@@ -737,6 +748,11 @@ impl Planes {
         all
     }
 
+    /// Open cells over all the planes.
+    fn open_cells(&self) -> usize {
+        self.list.iter().map(|plane| plane.open_cells).sum()
+    }
+
     /// The word of `open` and the bit in it of cell `c`.
     fn bit(&self, c: usize) -> (usize, u64) {
         let (u, v) = (c / self.nv, c % self.nv);
@@ -998,9 +1014,8 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
 /// leads. A plane with the same open cells as a neighbour searched since takes its best. These
 /// are lazy greedy picks, the same as searching every plane at first and again whenever it
 /// loses cells.
-fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64, inset: f64) -> Vec<Panel> {
-    let nv = g.dims[1];
-    let mut planes = Planes::new(gaps, planes, margin, g.dims);
+fn best_rectangles(g: &AxisGrid, gaps: &Gaps, mut planes: Planes, inset: f64) -> Vec<Panel> {
+    let (nv, margin) = (g.dims[1], planes.margin);
     let mut quads = Vec::new();
     let mut filled = Vec::new();
     let mut stack = Vec::new();
@@ -1275,7 +1290,7 @@ mod tests {
             }
             let planes: Vec<f64> = (0..40).map(|_| rng.f64() * 10.0).collect();
             let margin = 1e-6;
-            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, &planes, margin, 0.0)
+            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, Planes::new(&gaps, &planes, margin, g.dims), 0.0)
                 .iter()
                 .flat_map(|q| [[q.corners[0][0], q.corners[0][1]], [q.corners[2][0], q.corners[2][1]]])
                 .collect();

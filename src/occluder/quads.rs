@@ -46,10 +46,17 @@ struct Gap {
 }
 
 impl Gap {
-    /// Whether a plane at height `t` lies in it with `margin` to spare ([`Planes::holding`]
-    /// finds the planes this holds, in order of height).
+    /// Whether a plane at height `t` lies in it with `margin` to spare.
     fn holds(&self, t: f64, margin: f64) -> bool {
         self.lo + margin < t && t < self.hi - margin
+    }
+
+    /// The planes at `heights`, in order, that it holds with `margin` to spare: a run of them,
+    /// as positions in `heights`.
+    fn holds_among(&self, heights: &[f64], margin: f64) -> std::ops::Range<usize> {
+        let first = heights.partition_point(|&t| t <= self.lo + margin);
+        let end = heights.partition_point(|&t| t < self.hi - margin);
+        first..end.max(first)
     }
 }
 
@@ -151,10 +158,10 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
     let passes: Vec<(DQuat, usize)> = frames.iter().flat_map(|&f| (0..3).map(move |axis| (f, axis))).collect();
     let (world_lo, world_hi) = mesh.bounds();
     let inset = f32_slack(world_lo.as_dvec3(), world_hi.as_dvec3());
-    // Each pass's gaps and planes, then its rectangles: the searches, serial within a pass, are
-    // shared out once all gaps are found, those with the most open cells first, as they mostly
-    // take longest: a thread that ends one takes the next, and none waits long for the last.
-    let mut found: Vec<(usize, AxisGrid, Gaps, Planes)> = passes
+    // Each pass's gaps, then its rectangles: the searches, serial within a pass, are shared out
+    // once all gaps are found, those with the most open cells first, as they mostly take
+    // longest: a thread that ends one takes the next, and none waits long for the last.
+    let mut found: Vec<_> = passes
         .par_iter()
         .enumerate()
         .filter_map(|(pass, &(turn, axis))| {
@@ -183,20 +190,16 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
                 Solid::Closed { .. } => None,
             };
             let gaps = inside_gaps(mesh, &corners, &g, margin, solid, reach.as_ref());
-            let planes = Planes::new(
-                &gaps,
-                &candidate_planes(&gaps, lo[axis], hi[axis], cell),
-                margin,
-                g.dims,
-            );
-            Some((pass, g, gaps, planes))
+            let planes = candidate_planes(&gaps, lo[axis], hi[axis], cell);
+            let open = open_cells(&gaps, &planes, margin);
+            Some((open, pass, g, gaps, planes, margin))
         })
         .collect();
-    found.sort_by_key(|(_, _, _, planes)| Reverse(planes.open_cells()));
+    found.sort_by_key(|&(open, ..)| Reverse(open));
     let mut by_pass: Vec<(usize, Vec<Panel>)> = found
         .into_iter()
         .par_bridge()
-        .map(|(pass, g, gaps, planes)| (pass, best_rectangles(&g, &gaps, planes, inset)))
+        .map(|(_, pass, g, gaps, planes, margin)| (pass, best_rectangles(&g, &gaps, &planes, margin, inset)))
         .collect();
     by_pass.sort_unstable_by_key(|&(pass, _)| pass);
     by_pass.into_iter().flat_map(|(_, quads)| quads).collect()
@@ -626,6 +629,17 @@ fn candidate_planes(gaps: &Gaps, lo: f64, hi: f64, cell: f64) -> Vec<f64> {
     planes
 }
 
+/// The cells open over all `planes`, as [`Planes::new`] opens them (each plane where a cell's
+/// gap holds it): what a pass's rectangle search mostly takes its time over.
+fn open_cells(gaps: &Gaps, planes: &[f64], margin: f64) -> usize {
+    let mut heights = planes.to_vec();
+    heights.sort_by(f64::total_cmp);
+    gaps.list
+        .iter()
+        .map(|gap| gap.holds_among(&heights, margin).len())
+        .sum()
+}
+
 /// How far a plane's bound is from its best rectangle.
 #[derive(Clone, Copy, PartialEq)]
 enum Bound {
@@ -665,16 +679,13 @@ struct PlaneCells {
 /// The candidate planes of one axis grid, and which of them each gap holds.
 struct Planes {
     list: Vec<PlaneCells>,
-    /// Plane indices in order of height, each plane's position in it, and the heights in that
-    /// order.
+    /// Plane indices in order of height, and each plane's position in it.
     order: Vec<usize>,
     rank: Vec<usize>,
-    heights: Vec<f64>,
-    margin: f64,
     /// Cells along the grid's second axis, and words of a row of `open`.
     nv: usize,
     row_words: usize,
-    /// The planes, as positions in `order`, that each gap holds ([`Planes::holding`]), in the
+    /// The planes, as positions in `order`, that each gap holds ([`Gap::holds_among`]), in the
     /// order of [`Gaps::list`].
     held: Vec<std::ops::Range<usize>>,
 }
@@ -685,7 +696,7 @@ impl Planes {
     fn new(gaps: &Gaps, planes: &[f64], margin: f64, dims: [usize; 2]) -> Planes {
         let mut order: Vec<usize> = (0..planes.len()).collect();
         order.sort_by(|&a, &b| planes[a].total_cmp(&planes[b]));
-        let heights = order.iter().map(|&i| planes[i]).collect();
+        let heights: Vec<f64> = order.iter().map(|&i| planes[i]).collect();
         let mut rank = vec![0; planes.len()];
         for (k, &i) in order.iter().enumerate() {
             rank[i] = k;
@@ -710,17 +721,14 @@ impl Planes {
             list,
             order,
             rank,
-            heights,
-            margin,
             nv: dims[1],
             row_words,
-            held: Vec::new(),
+            held: gaps.list.iter().map(|gap| gap.holds_among(&heights, margin)).collect(),
         };
         // Where each gap's run of planes starts and ends, by position in height; then the
         // cells open on each plane in turn, from those on the plane below.
         let mut opens = vec![Vec::new(); planes.len() + 1];
         let mut closes = vec![Vec::new(); planes.len() + 1];
-        all.held = gaps.list.iter().map(|gap| all.holding(gap)).collect();
         for c in 0..gaps.starts.len() - 1 {
             for held in &all.held[gaps.starts[c]..gaps.starts[c + 1]] {
                 if !held.is_empty() {
@@ -748,22 +756,10 @@ impl Planes {
         all
     }
 
-    /// Open cells over all the planes.
-    fn open_cells(&self) -> usize {
-        self.list.iter().map(|plane| plane.open_cells).sum()
-    }
-
     /// The word of `open` and the bit in it of cell `c`.
     fn bit(&self, c: usize) -> (usize, u64) {
         let (u, v) = (c / self.nv, c % self.nv);
         (u * self.row_words + v / 64, 1 << (v % 64))
-    }
-
-    /// The planes, as positions in `order`, that `gap` holds with `margin` to spare.
-    fn holding(&self, gap: &Gap) -> std::ops::Range<usize> {
-        let first = self.heights.partition_point(|&t| t <= gap.lo + self.margin);
-        let end = self.heights.partition_point(|&t| t < gap.hi - self.margin);
-        first..end.max(first)
     }
 
     /// Closes each cell of `rect` on every plane its gap holds, the gaps given by index in
@@ -1014,8 +1010,9 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
 /// leads. A plane with the same open cells as a neighbour searched since takes its best. These
 /// are lazy greedy picks, the same as searching every plane at first and again whenever it
 /// loses cells.
-fn best_rectangles(g: &AxisGrid, gaps: &Gaps, mut planes: Planes, inset: f64) -> Vec<Panel> {
-    let (nv, margin) = (g.dims[1], planes.margin);
+fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64, inset: f64) -> Vec<Panel> {
+    let nv = g.dims[1];
+    let mut planes = Planes::new(gaps, planes, margin, g.dims);
     let mut quads = Vec::new();
     let mut filled = Vec::new();
     let mut stack = Vec::new();
@@ -1290,7 +1287,7 @@ mod tests {
             }
             let planes: Vec<f64> = (0..40).map(|_| rng.f64() * 10.0).collect();
             let margin = 1e-6;
-            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, Planes::new(&gaps, &planes, margin, g.dims), 0.0)
+            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, &planes, margin, 0.0)
                 .iter()
                 .flat_map(|q| [[q.corners[0][0], q.corners[0][1]], [q.corners[2][0], q.corners[2][1]]])
                 .collect();

@@ -271,6 +271,8 @@ fn one_tokens_hundred_jobs_do_not_hold_back_anothers_one() {
     );
     let done_before = busy_jobs.iter().filter(|id| job(id)["state"] == "done").count();
     println!("calm's job finished with {done_before} of busy's 100 done");
+    drop(server);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -3,19 +3,24 @@
 
 mod common;
 
+use std::path::{Path, PathBuf};
+
 fn run(args: &[&str]) -> (bool, String, String) {
     let (code, stdout, stderr) = common::cli(args);
     (code == 0, stdout, stderr)
 }
 
-fn temp(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("occluder-cook-cli-{}", std::process::id()));
+/// A test's own folder, made empty: tests run side by side, and one that rewrote another's input
+/// while it was read would fail it. Each test removes its folder when it ends.
+fn workdir(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-cli-{test}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    dir
 }
 
-fn write_cube_obj() -> std::path::PathBuf {
-    let path = temp("cube.obj");
+fn write_cube_obj(dir: &Path) -> PathBuf {
+    let path = dir.join("cube.obj");
     std::fs::write(
         &path,
         "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n\
@@ -27,9 +32,10 @@ fn write_cube_obj() -> std::path::PathBuf {
 
 #[test]
 fn cook_then_eval() {
-    let input = write_cube_obj();
-    let out = temp("cube.glb");
-    let report = temp("cube.json");
+    let dir = workdir("cook-eval");
+    let input = write_cube_obj(&dir);
+    let out = dir.join("cube.glb");
+    let report = dir.join("cube.json");
     let (ok, stdout, stderr) = run(&[
         "cook",
         input.to_str().unwrap(),
@@ -48,19 +54,21 @@ fn cook_then_eval() {
     let (ok, stdout, stderr) = run(&["eval", input.to_str().unwrap(), out.to_str().unwrap()]);
     assert!(ok, "{stderr}");
     assert!(stdout.contains("false pixels       0"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn errors_are_one_line_and_name_the_problem() {
-    let input = write_cube_obj();
+    let dir = workdir("errors");
+    let input = write_cube_obj(&dir);
     let input = input.to_str().unwrap();
-    let out = temp("x.glb");
+    let out = dir.join("x.glb");
     let out = out.to_str().unwrap();
-    let bad_config = temp("bad.toml");
+    let bad_config = dir.join("bad.toml");
     std::fs::write(&bad_config, "[cook]\nresolutoin = 64\n").unwrap();
-    let nan = temp("nan.obj");
+    let nan = dir.join("nan.obj");
     std::fs::write(&nan, "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n").unwrap();
-    let far = temp("far.obj");
+    let far = dir.join("far.obj");
     std::fs::write(&far, "v 0 0 0\nv 1 0 0\nv 3e38 1 0\nf 1 2 3\n").unwrap();
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (
@@ -108,4 +116,5 @@ fn errors_are_one_line_and_name_the_problem() {
         assert!(stderr.contains(expected), "{args:?}: {stderr}");
         assert_eq!(stderr.trim_end().lines().count(), 1, "{args:?}: {stderr}");
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -605,6 +605,8 @@ fn a_gpu_job_on_a_server_without_a_gpu_is_refused_up_front() {
     post(&format!("{cook}?device=gpu"), Some("model/obj"), &small_mesh(0)).assert_error(422, "no_gpu");
     let ok = post(&format!("{cook}?device=auto"), Some("model/obj"), &small_mesh(0));
     assert_eq!(ok.status, 202, "{}", String::from_utf8_lossy(&ok.body));
+    drop(server);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A job over service.job_timeout_s fails with `timeout`; DELETE cancels a queued job before it

@@ -3,20 +3,12 @@
 
 mod common;
 
+use common::workdir;
 use std::path::{Path, PathBuf};
 
 fn run(args: &[&str]) -> (bool, String, String) {
     let (code, stdout, stderr) = common::cli(args);
     (code == 0, stdout, stderr)
-}
-
-/// A test's own folder, made empty: tests run side by side, and one that rewrote another's input
-/// while it was read would fail it. Each test removes its folder when it ends.
-fn workdir(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("occluder-cook-cli-{test}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 fn write_cube_obj(dir: &Path) -> PathBuf {
@@ -32,7 +24,7 @@ fn write_cube_obj(dir: &Path) -> PathBuf {
 
 #[test]
 fn cook_then_eval() {
-    let dir = workdir("cook-eval");
+    let dir = workdir("cli-cook-eval");
     let input = write_cube_obj(&dir);
     let out = dir.join("cube.glb");
     let report = dir.join("cube.json");
@@ -59,7 +51,7 @@ fn cook_then_eval() {
 
 #[test]
 fn errors_are_one_line_and_name_the_problem() {
-    let dir = workdir("errors");
+    let dir = workdir("cli-errors");
     let input = write_cube_obj(&dir);
     let input = input.to_str().unwrap();
     let out = dir.join("x.glb");

@@ -45,13 +45,6 @@ fn assert_valid(modules: &Path, path: &Path) {
     );
 }
 
-/// A scratch folder of this test process.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("occluder-cook-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 #[test]
 fn occluder_glb_has_no_validator_errors() {
     let Some(modules) = validator() else { return };
@@ -65,7 +58,7 @@ fn occluder_glb_has_no_validator_errors() {
             hi: [1.25, 1.6, 0.8],
         },
     ]);
-    let dir = scratch("glb");
+    let dir = common::workdir("glb");
     let panels = panel_mesh(&[Panel {
         shape: Shape::Quads,
         corners: [[0.0, 0.5, 0.0], [2.0, 0.5, 0.0], [2.0, 0.5, 1.0], [0.0, 0.5, 1.0]],
@@ -99,7 +92,7 @@ fn occluder_glb_has_no_validator_errors() {
 fn converted_fbx_and_ply_have_no_validator_errors() {
     let Some(modules) = validator() else { return };
     let Some(corpus) = common::corpus() else { return };
-    let dir = scratch("convert");
+    let dir = common::workdir("convert");
     let mut converted = 0;
     for entry in std::fs::read_dir(corpus.join("formats")).unwrap() {
         let path = entry.unwrap().path();

@@ -35,6 +35,16 @@ pub fn cuboid(lo: Vec3, hi: Vec3, skip: &[usize]) -> Mesh {
     mesh
 }
 
+/// A test's own folder under the system's temp folder, `occluder-cook-{name}-{pid}`, made empty:
+/// tests run side by side, and one that rewrote another's files while they were read would fail
+/// it. Each test removes its folder when it ends.
+pub fn workdir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("occluder-cook-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
 /// The volume a closed mesh bounds: positive when its triangles face outwards.
 pub fn signed_volume(mesh: &Mesh) -> f64 {
     (0..mesh.triangles.len())

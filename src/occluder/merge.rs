@@ -19,63 +19,151 @@ struct Rect {
 }
 
 pub fn merge(boxes: &[WorldBox]) -> Mesh {
-    if boxes.is_empty() {
-        return Mesh::default();
-    }
-    let coords: [Vec<f64>; 3] = std::array::from_fn(|k| {
-        let mut c: Vec<f64> = boxes.iter().flat_map(|b| [b.lo[k], b.hi[k]]).collect();
-        c.sort_by(f64::total_cmp);
-        c.dedup();
-        c
-    });
-    let cells = coords.clone().map(|c| c.len() - 1);
-    let cell_index = |c: [usize; 3]| (c[0] * cells[1] + c[1]) * cells[2] + c[2];
-    let mut filled = vec![false; cells.iter().product()];
-    for b in boxes {
-        let lo: [usize; 3] = std::array::from_fn(|k| position(&coords[k], b.lo[k]));
-        let hi: [usize; 3] = std::array::from_fn(|k| position(&coords[k], b.hi[k]));
-        for x in lo[0]..hi[0] {
-            for y in lo[1]..hi[1] {
-                for z in lo[2]..hi[2] {
-                    filled[cell_index([x, y, z])] = true;
+    Faces::of(boxes).mesh()
+}
+
+/// The triangles of [`merge`]'s mesh of `boxes`, without making it.
+pub fn merged_triangles(boxes: &[WorldBox]) -> usize {
+    Faces::of(boxes).triangles()
+}
+
+/// The boundary of a union of boxes as rectangles on the grid of the boxes' coordinates, with
+/// every corner filed under the three axis-parallel lines through it.
+struct Faces {
+    rects: Vec<Rect>,
+    coords: [Vec<f64>; 3],
+    lines: HashMap<(usize, usize, usize), Vec<usize>>,
+}
+
+type Point = [usize; 3];
+
+impl Faces {
+    fn of(boxes: &[WorldBox]) -> Faces {
+        let coords: [Vec<f64>; 3] = std::array::from_fn(|k| {
+            let mut c: Vec<f64> = boxes.iter().flat_map(|b| [b.lo[k], b.hi[k]]).collect();
+            c.sort_by(f64::total_cmp);
+            c.dedup();
+            c
+        });
+        // None without boxes.
+        let cells = coords.clone().map(|c| c.len().saturating_sub(1));
+        let cell_index = |c: [usize; 3]| (c[0] * cells[1] + c[1]) * cells[2] + c[2];
+        let mut filled = vec![false; cells.iter().product()];
+        for b in boxes {
+            let lo: [usize; 3] = std::array::from_fn(|k| position(&coords[k], b.lo[k]));
+            let hi: [usize; 3] = std::array::from_fn(|k| position(&coords[k], b.hi[k]));
+            for x in lo[0]..hi[0] {
+                for y in lo[1]..hi[1] {
+                    for z in lo[2]..hi[2] {
+                        filled[cell_index([x, y, z])] = true;
+                    }
                 }
             }
         }
-    }
-    let is_filled = |c: [i64; 3]| {
-        (0..3).all(|k| c[k] >= 0 && (c[k] as usize) < cells[k]) && filled[cell_index(c.map(|v| v as usize))]
-    };
-    let mut rects = Vec::new();
-    for axis in 0..3 {
-        let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
-        let (nu, nv) = (cells[ua], cells[va]);
-        for plane in 0..=cells[axis] {
-            // +1: the face of a filled cell below the plane, -1: above it, 0: none.
-            let mut facing = vec![0i8; nu * nv];
-            for u in 0..nu {
-                for v in 0..nv {
-                    let mut c = [0i64; 3];
-                    c[ua] = u as i64;
-                    c[va] = v as i64;
-                    c[axis] = plane as i64 - 1;
-                    let below = is_filled(c);
-                    c[axis] = plane as i64;
-                    let above = is_filled(c);
-                    facing[u * nv + v] = i8::from(below) - i8::from(above);
+        let is_filled = |c: [i64; 3]| {
+            (0..3).all(|k| c[k] >= 0 && (c[k] as usize) < cells[k]) && filled[cell_index(c.map(|v| v as usize))]
+        };
+        let mut rects = Vec::new();
+        for axis in 0..3 {
+            let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
+            let (nu, nv) = (cells[ua], cells[va]);
+            for plane in 0..=cells[axis] {
+                // +1: the face of a filled cell below the plane, -1: above it, 0: none.
+                let mut facing = vec![0i8; nu * nv];
+                for u in 0..nu {
+                    for v in 0..nv {
+                        let mut c = [0i64; 3];
+                        c[ua] = u as i64;
+                        c[va] = v as i64;
+                        c[axis] = plane as i64 - 1;
+                        let below = is_filled(c);
+                        c[axis] = plane as i64;
+                        let above = is_filled(c);
+                        facing[u * nv + v] = i8::from(below) - i8::from(above);
+                    }
+                }
+                merge_rectangles(&mut facing, nu, nv, |u, v, positive| {
+                    rects.push(Rect {
+                        axis,
+                        plane,
+                        u,
+                        v,
+                        positive,
+                    })
+                });
+            }
+        }
+        let mut lines: HashMap<(usize, usize, usize), Vec<usize>> = HashMap::new();
+        for r in &rects {
+            for p in corners(r) {
+                for axis in 0..3 {
+                    let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+                    lines.entry((axis, p[a], p[b])).or_default().push(p[axis]);
                 }
             }
-            merge_rectangles(&mut facing, nu, nv, |u, v, positive| {
-                rects.push(Rect {
-                    axis,
-                    plane,
-                    u,
-                    v,
-                    positive,
+        }
+        for v in lines.values_mut() {
+            v.sort_unstable();
+            v.dedup();
+        }
+        Faces { rects, coords, lines }
+    }
+
+    /// Each rectangle's boundary polygon, with the corners of others that lie inside its edges.
+    fn polygons(&self) -> impl Iterator<Item = Vec<Point>> + '_ {
+        self.rects.iter().map(|r| {
+            let ring = corners(r);
+            let mut polygon: Vec<Point> = Vec::new();
+            for k in 0..4 {
+                let (a, b) = (ring[k], ring[(k + 1) % 4]);
+                polygon.push(a);
+                let axis = (0..3).find(|&i| a[i] != b[i]).expect("edges have length");
+                let (o1, o2) = ((axis + 1) % 3, (axis + 2) % 3);
+                let (lo, hi) = (a[axis].min(b[axis]), a[axis].max(b[axis]));
+                let mut inner: Vec<usize> = self.lines[&(axis, a[o1], a[o2])]
+                    .iter()
+                    .copied()
+                    .filter(|&c| c > lo && c < hi)
+                    .collect();
+                if a[axis] > b[axis] {
+                    inner.reverse();
+                }
+                polygon.extend(inner.into_iter().map(|c| {
+                    let mut p = a;
+                    p[axis] = c;
+                    p
+                }));
+            }
+            polygon
+        })
+    }
+
+    /// [`clip_ears`] makes n - 2 triangles of a polygon of n corners.
+    fn triangles(&self) -> usize {
+        self.polygons().map(|polygon| polygon.len() - 2).sum()
+    }
+
+    fn mesh(&self) -> Mesh {
+        let mut mesh = Mesh::default();
+        let mut index: HashMap<Point, u32> = HashMap::new();
+        for polygon in self.polygons() {
+            let ids: Vec<u32> = polygon
+                .iter()
+                .map(|&p| {
+                    *index.entry(p).or_insert_with(|| {
+                        mesh.positions.push(Vec3::new(
+                            self.coords[0][p[0]] as f32,
+                            self.coords[1][p[1]] as f32,
+                            self.coords[2][p[2]] as f32,
+                        ));
+                        (mesh.positions.len() - 1) as u32
+                    })
                 })
-            });
+                .collect();
+            clip_ears(&polygon, &ids, &mut mesh.triangles);
         }
+        mesh
     }
-    triangulate(&rects, &coords)
 }
 
 fn position(sorted: &[f64], value: f64) -> usize {
@@ -109,85 +197,28 @@ fn merge_rectangles(facing: &mut [i8], nu: usize, nv: usize, mut emit: impl FnMu
     }
 }
 
-type Point = [usize; 3];
-
-fn triangulate(rects: &[Rect], coords: &[Vec<f64>; 3]) -> Mesh {
-    let corners = |r: &Rect| -> [Point; 4] {
-        let (ua, va) = ((r.axis + 1) % 3, (r.axis + 2) % 3);
-        let at = |u: usize, v: usize| {
-            let mut p = [0; 3];
-            p[r.axis] = r.plane;
-            p[ua] = u;
-            p[va] = v;
-            p
-        };
-        // Counter-clockwise around +axis, since (axis, u, v) is right-handed.
-        let ring = [
-            at(r.u[0], r.v[0]),
-            at(r.u[1], r.v[0]),
-            at(r.u[1], r.v[1]),
-            at(r.u[0], r.v[1]),
-        ];
-        if r.positive {
-            ring
-        } else {
-            [ring[0], ring[3], ring[2], ring[1]]
-        }
+/// A rectangle's corners, counter-clockwise seen from the side it faces.
+fn corners(r: &Rect) -> [Point; 4] {
+    let (ua, va) = ((r.axis + 1) % 3, (r.axis + 2) % 3);
+    let at = |u: usize, v: usize| {
+        let mut p = [0; 3];
+        p[r.axis] = r.plane;
+        p[ua] = u;
+        p[va] = v;
+        p
     };
-    // Every corner, filed under the three axis-parallel lines through it.
-    let mut lines: HashMap<(usize, usize, usize), Vec<usize>> = HashMap::new();
-    for r in rects {
-        for p in corners(r) {
-            for axis in 0..3 {
-                let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
-                lines.entry((axis, p[a], p[b])).or_default().push(p[axis]);
-            }
-        }
+    // Counter-clockwise around +axis, since (axis, u, v) is right-handed.
+    let ring = [
+        at(r.u[0], r.v[0]),
+        at(r.u[1], r.v[0]),
+        at(r.u[1], r.v[1]),
+        at(r.u[0], r.v[1]),
+    ];
+    if r.positive {
+        ring
+    } else {
+        [ring[0], ring[3], ring[2], ring[1]]
     }
-    for v in lines.values_mut() {
-        v.sort_unstable();
-        v.dedup();
-    }
-    let mut mesh = Mesh::default();
-    let mut index: HashMap<Point, u32> = HashMap::new();
-    let mut vertex = |p: Point, mesh: &mut Mesh| -> u32 {
-        *index.entry(p).or_insert_with(|| {
-            mesh.positions.push(Vec3::new(
-                coords[0][p[0]] as f32,
-                coords[1][p[1]] as f32,
-                coords[2][p[2]] as f32,
-            ));
-            (mesh.positions.len() - 1) as u32
-        })
-    };
-    for r in rects {
-        let ring = corners(r);
-        // The boundary polygon, with the vertices lying inside each edge.
-        let mut polygon: Vec<Point> = Vec::new();
-        for k in 0..4 {
-            let (a, b) = (ring[k], ring[(k + 1) % 4]);
-            polygon.push(a);
-            let axis = (0..3).find(|&i| a[i] != b[i]).expect("edges have length");
-            let (o1, o2) = ((axis + 1) % 3, (axis + 2) % 3);
-            let (lo, hi) = (a[axis].min(b[axis]), a[axis].max(b[axis]));
-            let mut inner: Vec<usize> = lines[&(axis, a[o1], a[o2])]
-                .iter()
-                .copied()
-                .filter(|&c| c > lo && c < hi)
-                .collect();
-            if a[axis] > b[axis] {
-                inner.reverse();
-            }
-            polygon.extend(inner.into_iter().map(|c| {
-                let mut p = a;
-                p[axis] = c;
-                p
-            }));
-        }
-        let ids: Vec<u32> = polygon.iter().map(|&p| vertex(p, &mut mesh)).collect();
-        clip_ears(&polygon, &ids, &mut mesh.triangles);
-    }
-    mesh
 }
 
 /// Triangulates a convex polygon whose edges may hold collinear vertices into n - 2
@@ -221,4 +252,27 @@ fn clip_ears(polygon: &[Point], ids: &[u32], out: &mut Vec<[u32; 3]>) {
         ring.remove(k);
     }
     out.push([ids[ring[0]], ids[ring[1]], ids[ring[2]]]);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_triangles_counted_are_those_of_the_merged_mesh() {
+        assert_eq!(merged_triangles(&[]), 0);
+        assert!(merge(&[]).triangles.is_empty());
+        let mut rng = fastrand::Rng::with_seed(54);
+        for _ in 0..300 {
+            // Boxes on a coarse lattice, so that they touch, overlap and share faces: T-junctions.
+            let boxes: Vec<WorldBox> = (0..rng.usize(1..7))
+                .map(|_| {
+                    let lo: [f64; 3] = std::array::from_fn(|_| rng.usize(0..5) as f64);
+                    let hi: [f64; 3] = std::array::from_fn(|k| lo[k] + rng.usize(1..4) as f64);
+                    WorldBox { lo, hi }
+                })
+                .collect();
+            assert_eq!(merged_triangles(&boxes), merge(&boxes).triangles.len(), "{boxes:?}");
+        }
+    }
 }

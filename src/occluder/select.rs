@@ -3,7 +3,8 @@
 //! chosen covers yet, and the piece that adds the most pixels per triangle of the occluder goes
 //! first.
 
-use super::{WorldBox, merge::merge};
+use super::WorldBox;
+use super::merge::{merge, merged_triangles};
 use crate::geom::camera::{View, fibonacci_sphere};
 use crate::geom::raster::{DrawBuffers, coverage_mask, draw_coverage};
 use crate::geom::with_popcnt;
@@ -211,16 +212,15 @@ impl State<'_> {
                 .sum::<usize>()
     }
 
-    fn merged_with(&self, extra: Option<usize>) -> Mesh {
-        let boxes: Vec<WorldBox> = self
-            .chosen
+    /// The chosen boxes, and box `extra` if given.
+    fn boxes_with(&self, extra: Option<usize>) -> Vec<WorldBox> {
+        self.chosen
             .iter()
             .map(|c| c.0)
             .chain(extra)
             .filter(|&i| i < self.boxes.len())
             .map(|i| self.boxes[i])
-            .collect();
-        merge(&boxes)
+            .collect()
     }
 
     fn covered(&self) -> Vec<u64> {
@@ -258,27 +258,28 @@ impl State<'_> {
             .filter(|&i| !taken[i])
             .map(|i| (self.gain(&covered, i), Reverse(i)))
             .collect();
-        // The chosen boxes' solid with each box merged in.
-        let mut with_box: HashMap<usize, Mesh> = HashMap::new();
+        // The triangles of the chosen boxes' solid with each box merged in.
+        let mut with_box: HashMap<usize, usize> = HashMap::new();
         loop {
             let used = self.triangles();
             let best_sheet = self.best_sheet(&mut queue, &taken, &covered, used);
             // The merge decides what a box really costs: touching boxes share faces, and
-            // T-junctions add vertices; price the best few by merging them in. A merge holds
-            // until the chosen boxes change.
+            // T-junctions add vertices; price the best few by counting the triangles of the
+            // merge with each (the chosen one's is made). A price holds until the chosen boxes
+            // change.
             let lookahead = self.best_boxes(&mut box_queue, &taken, &covered);
             let unpriced: Vec<usize> = lookahead
                 .iter()
                 .map(|&(i, _)| i)
                 .filter(|i| !with_box.contains_key(i))
                 .collect();
-            let merged: Vec<(usize, Mesh)> = unpriced
+            let merged: Vec<(usize, usize)> = unpriced
                 .into_par_iter()
-                .map(|i| (i, self.merged_with(Some(i))))
+                .map(|i| (i, merged_triangles(&self.boxes_with(Some(i)))))
                 .collect();
             with_box.extend(merged);
             let priced_boxes = lookahead.iter().filter_map(|&(i, g)| {
-                let added = with_box[&i].triangles.len().saturating_sub(self.solid.triangles.len());
+                let added = with_box[&i].saturating_sub(self.solid.triangles.len());
                 let rank = Rank {
                     ratio: ratio(g, added),
                     candidate: i,
@@ -295,7 +296,7 @@ impl State<'_> {
             self.chosen.push((i, pixels));
             taken[i] = true;
             if i < first_sheet {
-                self.solid = with_box.remove(&i).expect("a chosen box was priced");
+                self.solid = merge(&self.boxes_with(None));
                 with_box.clear();
             }
         }
@@ -419,7 +420,7 @@ impl State<'_> {
             k += 1;
             keep[k - 1]
         });
-        self.solid = self.merged_with(None);
+        self.solid = merge(&self.boxes_with(None));
         true
     }
 }

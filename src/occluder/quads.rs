@@ -191,15 +191,15 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
             };
             let gaps = inside_gaps(mesh, &corners, &g, margin, solid, reach.as_ref());
             let planes = candidate_planes(&gaps, lo[axis], hi[axis], cell);
-            let open = open_cells(&gaps, &planes, margin);
-            Some((open, pass, g, gaps, planes, margin))
+            let order = PlaneOrder::new(&gaps, &planes, margin);
+            Some((order.open_cells(), pass, g, gaps, (planes, order), margin))
         })
         .collect();
     found.sort_by_key(|&(open, ..)| Reverse(open));
     let mut by_pass: Vec<(usize, Vec<Panel>)> = found
         .into_iter()
         .par_bridge()
-        .map(|(_, pass, g, gaps, planes, margin)| (pass, best_rectangles(&g, &gaps, &planes, margin, inset)))
+        .map(|(_, pass, g, gaps, planes, margin)| (pass, best_rectangles(&g, &gaps, planes, margin, inset)))
         .collect();
     by_pass.sort_unstable_by_key(|&(pass, _)| pass);
     by_pass.into_iter().flat_map(|(_, quads)| quads).collect()
@@ -629,15 +629,34 @@ fn candidate_planes(gaps: &Gaps, lo: f64, hi: f64, cell: f64) -> Vec<f64> {
     planes
 }
 
-/// The cells open over all `planes`, as [`Planes::new`] opens them (each plane where a cell's
-/// gap holds it): what a pass's rectangle search mostly takes its time over.
-fn open_cells(gaps: &Gaps, planes: &[f64], margin: f64) -> usize {
-    let mut heights = planes.to_vec();
-    heights.sort_by(f64::total_cmp);
-    gaps.list
-        .iter()
-        .map(|gap| gap.holds_among(&heights, margin).len())
-        .sum()
+/// The candidate planes in order of height, and the run of them that each gap holds.
+struct PlaneOrder {
+    /// Plane indices in order of height, and each plane's position in it.
+    by_height: Vec<usize>,
+    rank: Vec<usize>,
+    /// The planes, as positions in `by_height`, that each gap holds ([`Gap::holds_among`]), in the
+    /// order of [`Gaps::list`].
+    held: Vec<std::ops::Range<usize>>,
+}
+
+impl PlaneOrder {
+    fn new(gaps: &Gaps, planes: &[f64], margin: f64) -> PlaneOrder {
+        let mut by_height: Vec<usize> = (0..planes.len()).collect();
+        by_height.sort_by(|&a, &b| planes[a].total_cmp(&planes[b]));
+        let heights: Vec<f64> = by_height.iter().map(|&i| planes[i]).collect();
+        let mut rank = vec![0; planes.len()];
+        for (k, &i) in by_height.iter().enumerate() {
+            rank[i] = k;
+        }
+        let held = gaps.list.iter().map(|gap| gap.holds_among(&heights, margin)).collect();
+        PlaneOrder { by_height, rank, held }
+    }
+
+    /// The cells open over all planes, as [`Planes::new`] opens them: what a pass's rectangle
+    /// search mostly takes its time over.
+    fn open_cells(&self) -> usize {
+        self.held.iter().map(|held| held.len()).sum()
+    }
 }
 
 /// How far a plane's bound is from its best rectangle.
@@ -679,28 +698,16 @@ struct PlaneCells {
 /// The candidate planes of one axis grid, and which of them each gap holds.
 struct Planes {
     list: Vec<PlaneCells>,
-    /// Plane indices in order of height, and each plane's position in it.
-    order: Vec<usize>,
-    rank: Vec<usize>,
+    order: PlaneOrder,
     /// Cells along the grid's second axis, and words of a row of `open`.
     nv: usize,
     row_words: usize,
-    /// The planes, as positions in `order`, that each gap holds ([`Gap::holds_among`]), in the
-    /// order of [`Gaps::list`].
-    held: Vec<std::ops::Range<usize>>,
 }
 
 impl Planes {
     /// Each plane open in the cells with a gap that holds it: a gap holds a run of planes in
     /// order of height, and a cell's gaps do not overlap.
-    fn new(gaps: &Gaps, planes: &[f64], margin: f64, dims: [usize; 2]) -> Planes {
-        let mut order: Vec<usize> = (0..planes.len()).collect();
-        order.sort_by(|&a, &b| planes[a].total_cmp(&planes[b]));
-        let heights: Vec<f64> = order.iter().map(|&i| planes[i]).collect();
-        let mut rank = vec![0; planes.len()];
-        for (k, &i) in order.iter().enumerate() {
-            rank[i] = k;
-        }
+    fn new(gaps: &Gaps, (planes, order): (&[f64], PlaneOrder), dims: [usize; 2]) -> Planes {
         let row_words = dims[1].div_ceil(64);
         let list = planes
             .iter()
@@ -720,17 +727,15 @@ impl Planes {
         let mut all = Planes {
             list,
             order,
-            rank,
             nv: dims[1],
             row_words,
-            held: gaps.list.iter().map(|gap| gap.holds_among(&heights, margin)).collect(),
         };
         // Where each gap's run of planes starts and ends, by position in height; then the
         // cells open on each plane in turn, from those on the plane below.
         let mut opens = vec![Vec::new(); planes.len() + 1];
         let mut closes = vec![Vec::new(); planes.len() + 1];
         for c in 0..gaps.starts.len() - 1 {
-            for held in &all.held[gaps.starts[c]..gaps.starts[c + 1]] {
+            for held in &all.order.held[gaps.starts[c]..gaps.starts[c + 1]] {
                 if !held.is_empty() {
                     opens[held.start].push(c);
                     closes[held.end].push(c);
@@ -748,7 +753,7 @@ impl Planes {
                 let (word, bit) = all.bit(c);
                 open[word] |= bit;
             }
-            let plane = &mut all.list[all.order[k]];
+            let plane = &mut all.list[all.order.by_height[k]];
             plane.open.copy_from_slice(&open);
             plane.open_cells = open.iter().map(|w| w.count_ones() as usize).sum();
             plane.bound = plane.open_cells;
@@ -772,14 +777,14 @@ impl Planes {
         let n = (rect.v[1] - 1) / 64 + 1 - first_word;
         // For each position in `order`, the row's cells whose run of planes starts there and
         // those whose run ends there, `n` words each.
-        let positions = self.order.len() + 1;
+        let positions = self.order.by_height.len() + 1;
         let (mut starting, mut ending) = (vec![0u64; positions * n], vec![0u64; positions * n]);
         let mut mask = vec![0u64; n];
         for (u, row_gaps) in (rect.u[0]..rect.u[1]).zip(gaps.chunks(width)) {
             // The positions the row's runs span.
             let (mut lowest, mut end) = (positions, 0);
             for (v, &gap) in (rect.v[0]..rect.v[1]).zip(row_gaps) {
-                let held = &self.held[gap];
+                let held = &self.order.held[gap];
                 if !held.is_empty() {
                     let (word, bit) = (v / 64 - first_word, 1u64 << (v % 64));
                     starting[held.start * n + word] |= bit;
@@ -794,7 +799,7 @@ impl Planes {
                     *m = (*m | s) & !e;
                 }
                 if mask.iter().any(|&m| m != 0) {
-                    self.close_row(self.order[k], u, first_word, &mask);
+                    self.close_row(self.order.by_height[k], u, first_word, &mask);
                 }
             }
             if lowest < end {
@@ -882,11 +887,11 @@ impl Planes {
     /// take that best, as a search of theirs would find it; planes a few cells apart in a thick
     /// part of the solid often agree.
     fn bound_subsets(&mut self, i: usize) {
-        let (k, best, rect) = (self.rank[i], self.list[i].bound, self.list[i].best);
-        let (mut below, mut above) = ((0..k).rev(), k + 1..self.order.len());
+        let (k, best, rect) = (self.order.rank[i], self.list[i].bound, self.list[i].best);
+        let (mut below, mut above) = ((0..k).rev(), k + 1..self.order.by_height.len());
         for side in [&mut below as &mut dyn Iterator<Item = usize>, &mut above] {
             for r in side {
-                let j = self.order[r];
+                let j = self.order.by_height[r];
                 let (open, around) = (&self.list[j].open, &self.list[i].open);
                 if !open.iter().zip(around).all(|(a, b)| a & !b == 0) {
                     break;
@@ -1010,9 +1015,15 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
 /// leads. A plane with the same open cells as a neighbour searched since takes its best. These
 /// are lazy greedy picks, the same as searching every plane at first and again whenever it
 /// loses cells.
-fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: &[f64], margin: f64, inset: f64) -> Vec<Panel> {
+fn best_rectangles(
+    g: &AxisGrid,
+    gaps: &Gaps,
+    (planes, order): (Vec<f64>, PlaneOrder),
+    margin: f64,
+    inset: f64,
+) -> Vec<Panel> {
     let nv = g.dims[1];
-    let mut planes = Planes::new(gaps, planes, margin, g.dims);
+    let mut planes = Planes::new(gaps, (&planes, order), g.dims);
     let mut quads = Vec::new();
     let mut filled = Vec::new();
     let mut stack = Vec::new();
@@ -1287,7 +1298,8 @@ mod tests {
             }
             let planes: Vec<f64> = (0..40).map(|_| rng.f64() * 10.0).collect();
             let margin = 1e-6;
-            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, &planes, margin, 0.0)
+            let order = PlaneOrder::new(&gaps, &planes, margin);
+            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, (planes.clone(), order), margin, 0.0)
                 .iter()
                 .flat_map(|q| [[q.corners[0][0], q.corners[0][1]], [q.corners[2][0], q.corners[2][1]]])
                 .collect();

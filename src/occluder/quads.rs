@@ -199,7 +199,9 @@ pub fn find(mesh: &Mesh, grid: usize, solid: Solid) -> Vec<Panel> {
     let mut by_pass: Vec<(usize, Vec<Panel>)> = found
         .into_iter()
         .par_bridge()
-        .map(|(_, pass, g, gaps, planes, margin)| (pass, best_rectangles(&g, &gaps, planes, margin, inset)))
+        .map(|(_, pass, g, gaps, (planes, order), margin)| {
+            (pass, best_rectangles(&g, &gaps, (&planes, order), margin, inset))
+        })
         .collect();
     by_pass.sort_unstable_by_key(|&(pass, _)| pass);
     by_pass.into_iter().flat_map(|(_, quads)| quads).collect()
@@ -775,7 +777,7 @@ impl Planes {
         let width = rect.v[1] - rect.v[0];
         let first_word = rect.v[0] / 64;
         let n = (rect.v[1] - 1) / 64 + 1 - first_word;
-        // For each position in `order`, the row's cells whose run of planes starts there and
+        // For each position in height order, the row's cells whose run of planes starts there and
         // those whose run ends there, `n` words each.
         let positions = self.order.by_height.len() + 1;
         let (mut starting, mut ending) = (vec![0u64; positions * n], vec![0u64; positions * n]);
@@ -1015,15 +1017,9 @@ fn open_bounds(open: &[u64], row_words: usize) -> Option<([usize; 2], [usize; 2]
 /// leads. A plane with the same open cells as a neighbour searched since takes its best. These
 /// are lazy greedy picks, the same as searching every plane at first and again whenever it
 /// loses cells.
-fn best_rectangles(
-    g: &AxisGrid,
-    gaps: &Gaps,
-    (planes, order): (Vec<f64>, PlaneOrder),
-    margin: f64,
-    inset: f64,
-) -> Vec<Panel> {
+fn best_rectangles(g: &AxisGrid, gaps: &Gaps, planes: (&[f64], PlaneOrder), margin: f64, inset: f64) -> Vec<Panel> {
     let nv = g.dims[1];
-    let mut planes = Planes::new(gaps, (&planes, order), g.dims);
+    let mut planes = Planes::new(gaps, planes, g.dims);
     let mut quads = Vec::new();
     let mut filled = Vec::new();
     let mut stack = Vec::new();
@@ -1299,7 +1295,7 @@ mod tests {
             let planes: Vec<f64> = (0..40).map(|_| rng.f64() * 10.0).collect();
             let margin = 1e-6;
             let order = PlaneOrder::new(&gaps, &planes, margin);
-            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, (planes.clone(), order), margin, 0.0)
+            let lazy: Vec<[f64; 2]> = best_rectangles(&g, &gaps, (&planes, order), margin, 0.0)
                 .iter()
                 .flat_map(|q| [[q.corners[0][0], q.corners[0][1]], [q.corners[2][0], q.corners[2][1]]])
                 .collect();

@@ -96,7 +96,7 @@ fn main() {
 /// Keeps the heap a cook frees for what it allocates next. glibc otherwise maps each large block
 /// afresh and hands the top of the heap back once it grows past a threshold, so stages that free
 /// and allocate the same megabytes again and again (the quads' passes, the selection's masks)
-/// have the kernel fault in and zero new pages each time: a fandisk cook took 7.1 k page faults,
+/// have the kernel fault in and zero new pages each time: a fandisk cook took 6.7 k page faults,
 /// 5.1 k with this. The service hands a job's memory back when it ends (malloc_trim), whatever
 /// these thresholds.
 fn keep_freed_memory() {

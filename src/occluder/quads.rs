@@ -6,7 +6,8 @@
 //! axis. Every triangle that meets the prism, clipped to it, blocks the range of heights it spans
 //! there. Between two blocked ranges the prism's cross-section meets no surface, so it is inside
 //! or outside as a whole, and one point query decides which: on a closed surface, the crossings
-//! of the cell's centre line above the gap, since they count the same in every direction. A
+//! of the cell's centre line above the gap, since they count the same in every direction; and
+//! as gaps of cells side by side that overlap in height meet, one query decides all that meet. A
 //! plane is open in a cell when it lies in such an inside gap; a quad is a rectangle of cells in
 //! which one plane is open. The test holds for the cell's whole footprint, not only at a
 //! sample, so the quad is inside everywhere.
@@ -98,6 +99,14 @@ impl AxisGrid {
         (x - self.origin[k]) / self.cell
     }
 
+    /// The centre of cell (u, v) in grid coordinates.
+    fn center(&self, u: usize, v: usize) -> [f64; 2] {
+        [
+            self.origin[0] + (index_to_f64(u) + 0.5) * self.cell,
+            self.origin[1] + (index_to_f64(v) + 0.5) * self.cell,
+        ]
+    }
+
     /// A grid point's place among the cells: its first two coordinates in cells from the origin.
     fn place_of(&self, p: &[f64; 3]) -> [f64; 2] {
         [self.cells_along(0, p[0]), self.cells_along(1, p[1])]
@@ -136,6 +145,8 @@ pub enum Solid<'a> {
     /// A closed surface: the crossings of the cell's centre line above the gap's middle, whose
     /// signed sum is the winding number there and whose count's parity is the parity test, as
     /// along any other ray. Inside where the sum is at least 1, or with `parity`, the count odd.
+    /// Asked once for each region of gaps that meet across the cells' sides, which no surface
+    /// parts ([`inside_by_regions`]).
     Closed { parity: bool },
     /// Any other: the classification `at` a world point, asked at the gap's middle. It holds
     /// nowhere outside the boxes `within` (such as the inner voxels), so a cell whose centre
@@ -288,23 +299,21 @@ fn inside_gaps(
         rows.push(head);
         rest = tail;
     }
-    let by_row: Vec<(Vec<Gap>, Vec<usize>)> = rows
+    // Each row's gaps, and for a closed surface, the index among their cell's blocks of the
+    // first block above each: it decides them once per region below.
+    let by_row: Vec<(Vec<Gap>, Vec<usize>, Vec<u32>)> = rows
         .into_par_iter()
         .enumerate()
         .map(|(u, row)| {
             // Room for a gap a cell, about what a row has.
-            let (mut list, mut ends) = (Vec::with_capacity(nv), Vec::with_capacity(nv));
-            let (mut found, mut inside) = (Vec::new(), Vec::new());
+            let (mut list, mut ends, mut above) = (Vec::with_capacity(nv), Vec::with_capacity(nv), Vec::new());
+            let mut found = Vec::new();
             for v in 0..nv {
                 let c = u * nv + v;
                 let ranges = &mut row[starts[c] - starts[u * nv]..starts[c + 1] - starts[u * nv]];
                 // The heights are finite, as the mesh's corners are (MAX_COORDINATE): the plain
                 // compare, cheaper than total_cmp's.
                 ranges.sort_unstable_by(|a, b| a.heights.0.partial_cmp(&b.heights.0).unwrap_or(Ordering::Equal));
-                let center = [
-                    g.origin[0] + (index_to_f64(u) + 0.5) * g.cell,
-                    g.origin[1] + (index_to_f64(v) + 0.5) * g.cell,
-                ];
                 // The gaps, each with the index of the first block above it.
                 found.clear();
                 let mut top = f64::NEG_INFINITY;
@@ -315,31 +324,20 @@ fn inside_gaps(
                     }
                     top = greater(top, t1);
                 }
-                inside.clear();
                 match solid {
-                    Solid::Points { at, .. } => inside.extend(
-                        found
-                            .iter()
-                            .map(|(_, gap)| at(g.point(center[0], center[1], 0.5 * (gap.lo + gap.hi)))),
-                    ),
-                    Solid::Closed { parity } => {
-                        let crossing = |block: &Block| {
-                            let tri = mesh.triangles[block.triangle as usize].map(|i| corners[i as usize]);
-                            column_sign(&tri, center)
-                        };
-                        closed_gaps(&found, ranges, crossing, parity, &mut inside);
+                    Solid::Points { at, .. } => {
+                        let [cu, cv] = g.center(u, v);
+                        let inside = |gap: &Gap| at(g.point(cu, cv, 0.5 * (gap.lo + gap.hi)));
+                        list.extend(found.iter().map(|(_, gap)| *gap).filter(inside));
+                    }
+                    Solid::Closed { .. } => {
+                        list.extend(found.iter().map(|(_, gap)| *gap));
+                        above.extend(found.iter().map(|&(k, _)| k as u32));
                     }
                 }
-                list.extend(
-                    found
-                        .iter()
-                        .zip(&inside)
-                        .filter(|(_, inside)| **inside)
-                        .map(|((_, gap), _)| *gap),
-                );
                 ends.push(list.len());
             }
-            (list, ends)
+            (list, ends, above)
         })
         .collect();
     let mut gaps = Gaps {
@@ -347,54 +345,96 @@ fn inside_gaps(
         list: Vec::new(),
     };
     gaps.starts.push(0);
-    for (list, ends) in by_row {
+    let mut above = Vec::new();
+    for (list, ends, row_above) in by_row {
         let before = gaps.list.len();
         gaps.starts.extend(ends.iter().map(|end| before + end));
         gaps.list.extend(list);
+        above.extend(row_above);
+    }
+    if let Solid::Closed { parity } = solid {
+        let inside = inside_by_regions(&gaps, nv, margin, |c, gap| {
+            let blocks = &ranges[starts[c]..starts[c + 1]];
+            let tri = |block: &Block| mesh.triangles[block.triangle as usize].map(|i| corners[i as usize]);
+            let center = g.center(c / nv, c % nv);
+            let crossings = |blocks: &[Block]| {
+                let signs = blocks.iter().filter_map(|block| column_sign(&tri(block), center));
+                signs.fold((0, 0u32), |(sum, count), sign| (sum + i32::from(sign), count + 1))
+            };
+            // All of the line's crossings cancel out: those above, or those below negated,
+            // whichever are fewer.
+            let k = above[gap] as usize;
+            let (above, count) = if blocks.len() - k <= k {
+                crossings(&blocks[k..])
+            } else {
+                let (below, count) = crossings(&blocks[..k]);
+                (-below, count)
+            };
+            if parity { count % 2 == 1 } else { above >= 1 }
+        });
+        gaps.keep(&inside);
     }
     gaps
 }
 
-/// Whether each gap of a cell of a closed surface is inside, into `inside`: `found` are the
-/// gaps, each with the index in `blocks` (sorted by lowest height) of the first block above
-/// it. The cell's centre line crosses only the blocks' triangles (`crossing` gives the sign
-/// where it does), and its crossings above a gap decide it; as all of them cancel out, so do
-/// those below, negated. The side with fewer blocks is counted.
-fn closed_gaps(
-    found: &[(usize, Gap)],
-    blocks: &[Block],
-    crossing: impl Fn(&Block) -> Option<i8>,
-    parity: bool,
-    inside: &mut Vec<bool>,
-) {
-    let (Some(&(first, _)), Some(&(last, _))) = (found.first(), found.last()) else {
-        return;
-    };
-    // The signed sum and the count of the crossings counted so far.
-    let (mut sum, mut count) = (0i32, 0u32);
-    let mut add = |blocks: &[Block]| {
-        for sign in blocks.iter().filter_map(&crossing) {
-            sum += i32::from(sign);
-            count += 1;
+/// Whether each gap is inside, `decide` asked for one gap (its cell and index) of each region
+/// of them: gaps of cells side by side that overlap by more than `2 * margin` in height meet,
+/// as the cells' cross-sections there meet no surface and share a side. Across a closed
+/// surface alone does the winding number or the parity change, so a region's gaps agree.
+fn inside_by_regions(gaps: &Gaps, nv: usize, margin: f64, decide: impl Fn(usize, usize) -> bool) -> Vec<bool> {
+    let mut regions = Regions::new(gaps.list.len());
+    for c in 0..gaps.starts.len() - 1 {
+        let beside = [(c % nv > 0).then(|| c - 1), c.checked_sub(nv)];
+        for other in beside.into_iter().flatten() {
+            let (mut i, mut j) = (gaps.starts[c], gaps.starts[other]);
+            // Each cell's gaps are in order of height and apart.
+            while i < gaps.starts[c + 1] && j < gaps.starts[other + 1] {
+                let (a, b) = (gaps.list[i], gaps.list[j]);
+                if lesser(a.hi, b.hi) - greater(a.lo, b.lo) > 2.0 * margin {
+                    regions.join(i, j);
+                }
+                if a.hi < b.hi {
+                    i += 1;
+                } else {
+                    j += 1;
+                }
+            }
         }
-        (sum, count)
-    };
-    let decide = |above: i32, count: u32| if parity { count % 2 == 1 } else { above >= 1 };
-    if last <= blocks.len() - first {
-        let mut counted = 0;
-        for &(k, _) in found {
-            let (below, count) = add(&blocks[counted..k]);
-            counted = k;
-            inside.push(decide(-below, count));
+    }
+    let mut decided = vec![None; gaps.list.len()];
+    let mut inside = Vec::with_capacity(gaps.list.len());
+    for c in 0..gaps.starts.len() - 1 {
+        for gap in gaps.starts[c]..gaps.starts[c + 1] {
+            inside.push(*decided[regions.root(gap)].get_or_insert_with(|| decide(c, gap)));
         }
-    } else {
-        let mut counted = blocks.len();
-        inside.resize(found.len(), false);
-        for (&(k, _), inside) in found.iter().zip(inside.iter_mut()).rev() {
-            let (above, count) = add(&blocks[k..counted]);
-            counted = k;
-            *inside = decide(above, count);
+    }
+    inside
+}
+
+/// Sets of gaps that meet, each named by one of them (union-find, with path halving).
+struct Regions {
+    parent: Vec<u32>,
+}
+
+impl Regions {
+    fn new(count: usize) -> Regions {
+        Regions {
+            parent: (0..count as u32).collect(),
         }
+    }
+
+    fn root(&mut self, mut i: usize) -> usize {
+        while self.parent[i] as usize != i {
+            let grand = self.parent[self.parent[i] as usize];
+            self.parent[i] = grand;
+            i = grand as usize;
+        }
+        i
+    }
+
+    fn join(&mut self, a: usize, b: usize) {
+        let (a, b) = (self.root(a), self.root(b));
+        self.parent[a.max(b)] = a.min(b) as u32;
     }
 }
 
@@ -609,6 +649,19 @@ struct Gaps {
 impl Gaps {
     fn of(&self, c: usize) -> &[Gap] {
         &self.list[self.starts[c]..self.starts[c + 1]]
+    }
+
+    /// Keeps the gaps `keep` holds, one flag a gap.
+    fn keep(&mut self, keep: &[bool]) {
+        let mut kept = 0;
+        for c in 0..self.starts.len() - 1 {
+            let (first, end) = (self.starts[c], self.starts[c + 1]);
+            self.starts[c] = kept;
+            kept += keep[first..end].iter().filter(|&&k| k).count();
+        }
+        *self.starts.last_mut().expect("a start past the last cell") = kept;
+        let mut flags = keep.iter();
+        self.list.retain(|_| *flags.next().expect("a flag a gap"));
     }
 }
 
@@ -1179,6 +1232,40 @@ mod tests {
             },
         );
         assert_eq!(left_out, everywhere);
+    }
+
+    #[test]
+    fn gaps_of_cells_side_by_side_that_overlap_are_decided_once_a_region() {
+        let margin = 0.01;
+        // 3 × 4 cells, the second axis fastest: a low gap in each, and a high one in each but
+        // cell 5, which the others reach round it; cells 10 and 11 have higher ones instead,
+        // which overlap by the margin alone.
+        let mut gaps = Gaps {
+            starts: vec![0],
+            list: Vec::new(),
+        };
+        for c in 0..12 {
+            let shift = c as f64 * 0.05;
+            gaps.list.push(Gap {
+                lo: shift,
+                hi: 2.0 + shift,
+            });
+            match c {
+                5 => {}
+                10 => gaps.list.push(Gap { lo: 5.0, hi: 6.0 }),
+                11 => gaps.list.push(Gap { lo: 5.99, hi: 7.0 }),
+                _ => gaps.list.push(Gap { lo: 3.0, hi: 4.0 }),
+            }
+            gaps.starts.push(gaps.list.len());
+        }
+        let asked = std::cell::RefCell::new(Vec::new());
+        let inside = inside_by_regions(&gaps, 4, margin, |c, gap| {
+            asked.borrow_mut().push((c, gap));
+            gaps.list[gap].lo >= 3.0
+        });
+        // The low gaps, the high ones of cells 0-4 and 6-9, cell 10's and cell 11's.
+        assert_eq!(asked.into_inner(), [(0, 0), (0, 1), (10, 20), (11, 22)]);
+        assert_eq!(inside, gaps.list.iter().map(|gap| gap.lo >= 3.0).collect::<Vec<_>>());
     }
 
     /// The part of a convex polygon with coordinate `k` on one side of `bound`, closed

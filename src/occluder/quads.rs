@@ -357,24 +357,29 @@ fn inside_gaps(
             let blocks = &ranges[starts[c]..starts[c + 1]];
             let tri = |block: &Block| mesh.triangles[block.triangle as usize].map(|i| corners[i as usize]);
             let center = g.center(c / nv, c % nv);
-            let crossings = |blocks: &[Block]| {
-                let signs = blocks.iter().filter_map(|block| column_sign(&tri(block), center));
-                signs.fold((0, 0u32), |(sum, count), sign| (sum + i32::from(sign), count + 1))
-            };
-            // All of the line's crossings cancel out: those above, or those below negated,
-            // whichever are fewer.
-            let k = above[gap] as usize;
-            let (above, count) = if blocks.len() - k <= k {
-                crossings(&blocks[k..])
-            } else {
-                let (below, count) = crossings(&blocks[..k]);
-                (-below, count)
-            };
+            let [above, count] = crossings_above(blocks, above[gap] as usize, |block| column_sign(&tri(block), center));
             if parity { count % 2 == 1 } else { above >= 1 }
         });
         gaps.keep(&inside);
     }
     gaps
+}
+
+/// The signed sum and the count of a cell's centre line's crossings above its gap below block
+/// `first_above` of `blocks` (sorted by lowest height); `crossing` gives a block's sign where
+/// the line crosses its triangle. As all of them cancel out, those below, negated, serve as
+/// well: the side with fewer blocks is counted.
+fn crossings_above(blocks: &[Block], first_above: usize, crossing: impl Fn(&Block) -> Option<i8>) -> [i32; 2] {
+    let count = |side: &[Block]| {
+        let signs = side.iter().filter_map(&crossing);
+        signs.fold([0, 0], |[sum, count], sign| [sum + i32::from(sign), count + 1])
+    };
+    if blocks.len() - first_above <= first_above {
+        count(&blocks[first_above..])
+    } else {
+        let [below, n] = count(&blocks[..first_above]);
+        [-below, n]
+    }
 }
 
 /// Whether each gap is inside, `decide` asked for one gap (its cell and index) of each region

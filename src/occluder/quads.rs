@@ -357,18 +357,19 @@ fn inside_gaps(
             let blocks = &ranges[starts[c]..starts[c + 1]];
             let tri = |block: &Block| mesh.triangles[block.triangle as usize].map(|i| corners[i as usize]);
             let center = g.center(c / nv, c % nv);
-            let [above, count] = crossings_above(blocks, above[gap] as usize, |block| column_sign(&tri(block), center));
-            if parity { count % 2 == 1 } else { above >= 1 }
+            let [sum, count] = crossings_above(blocks, above[gap] as usize, |block| column_sign(&tri(block), center));
+            if parity { count % 2 == 1 } else { sum >= 1 }
         });
         gaps.keep(&inside);
     }
     gaps
 }
 
-/// The signed sum and the count of a cell's centre line's crossings above its gap below block
-/// `first_above` of `blocks` (sorted by lowest height); `crossing` gives a block's sign where
-/// the line crosses its triangle. As all of them cancel out, those below, negated, serve as
-/// well: the side with fewer blocks is counted.
+/// The signed sum and the count of a cell's centre line's crossings above one of its gaps:
+/// `blocks` are the cell's, sorted by lowest height, and `first_above` is the index of the
+/// first above the gap. `crossing` gives a block's sign where the line crosses its triangle. As
+/// all of them cancel out, those below, negated, serve as well: the side with fewer blocks is
+/// counted.
 fn crossings_above(blocks: &[Block], first_above: usize, crossing: impl Fn(&Block) -> Option<i8>) -> [i32; 2] {
     let count = |side: &[Block]| {
         let signs = side.iter().filter_map(&crossing);

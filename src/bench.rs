@@ -243,40 +243,72 @@ pub fn summary(rows: &[BenchRow]) -> String {
 /// now), coverage, triangles and non-below false pixels, then the totals over the meshes both
 /// cooked.
 pub fn compare(rows: &[BenchRow], earlier: &Value) -> Result<String, String> {
-    let earlier: HashMap<&str, Figures> = earlier
-        .as_array()
-        .ok_or("the earlier run is not a bench JSON (an array of rows)")?
-        .iter()
-        .filter_map(|row| Some((row["mesh"].as_str()?, figures(row)?)))
-        .collect();
+    let now = serde_json::to_value(rows).map_err(|e| e.to_string())?;
+    side_by_side(std::slice::from_ref(earlier), &[now])
+}
+
+/// Rounds of two builds' bench JSONs (`bench --against`), mesh by mesh: the median cook time
+/// under each, the ratio of the medians (earlier over later), the median of the rounds' own
+/// ratios (round k of one against round k of the other), and the last round's coverage,
+/// triangles and non-below false pixels; then the totals of the medians over the meshes that
+/// every round cooked. One round each is [`compare`].
+pub fn side_by_side(earlier: &[Value], later: &[Value]) -> Result<String, String> {
+    let figures_of = |runs: &[Value]| -> Result<Vec<HashMap<String, Figures>>, String> {
+        let run = |json: &Value| {
+            let rows = json.as_array().ok_or("a run is not a bench JSON (an array of rows)")?;
+            let meshes = rows
+                .iter()
+                .filter_map(|row| Some((row["mesh"].as_str()?.to_string(), figures(row)?)));
+            Ok(meshes.collect())
+        };
+        runs.iter().map(run).collect()
+    };
+    let (then, now) = (figures_of(earlier)?, figures_of(later)?);
+    let (Some(then_last), Some(now_last)) = (then.last(), now.last()) else {
+        return Err("no runs to compare".into());
+    };
     let mut lines = vec![format!(
-        "{:<34} {:>9} {:>9} {:>8} {:>17} {:>11} {:>9}",
-        "mesh", "then_ms", "now_ms", "speedup", "coverage", "triangles", "false_nb"
+        "{:<34} {:>9} {:>9} {:>8} {:>8} {:>17} {:>11} {:>9}",
+        "mesh", "then_ms", "now_ms", "speedup", "by_round", "coverage", "triangles", "false_nb"
     )];
     let (mut then_total, mut now_total) = (0.0, 0.0);
-    for row in rows {
-        let now = serde_json::to_value(row).ok().as_ref().and_then(figures);
-        let (Some(now), Some(then)) = (now, earlier.get(row.mesh.as_str())) else {
+    let rounds = then.len().min(now.len());
+    // In the order of the later run's rows.
+    let names = later.last().and_then(Value::as_array).into_iter().flatten();
+    for mesh in names.filter_map(|row| row["mesh"].as_str()) {
+        let times = |runs: &[HashMap<String, Figures>]| -> Option<Vec<f64>> {
+            runs.iter().map(|run| Some(run.get(mesh)?.cook_ms)).collect()
+        };
+        let (Some(then_ms), Some(now_ms), Some(before), Some(after)) =
+            (times(&then), times(&now), then_last.get(mesh), now_last.get(mesh))
+        else {
             continue;
         };
-        then_total += then.cook_ms;
-        now_total += now.cook_ms;
+        let by_round: Vec<f64> = (0..rounds).map(|r| then_ms[r] / now_ms[r].max(1e-9)).collect();
+        let (then_ms, now_ms) = (median(then_ms), median(now_ms));
+        then_total += then_ms;
+        now_total += now_ms;
         lines.push(format!(
-            "{:<34} {:>9.1} {:>9.1} {:>7.2}x {:>6.1}% -> {:>5.1}% {:>4} -> {:>4} {:>3} -> {:>2}",
-            row.mesh,
-            then.cook_ms,
-            now.cook_ms,
-            then.cook_ms / now.cook_ms.max(1e-9),
-            then.coverage * 100.0,
-            now.coverage * 100.0,
-            then.triangles,
-            now.triangles,
-            then.false_non_below,
-            now.false_non_below,
+            "{:<34} {:>9.1} {:>9.1} {:>7.2}x {:>7.2}x {:>6.1}% -> {:>5.1}% {:>4} -> {:>4} {:>3} -> {:>2}",
+            mesh,
+            then_ms,
+            now_ms,
+            then_ms / now_ms.max(1e-9),
+            median(by_round),
+            before.coverage * 100.0,
+            after.coverage * 100.0,
+            before.triangles,
+            after.triangles,
+            before.false_non_below,
+            after.false_non_below,
         ));
     }
+    let of_rounds = match rounds {
+        1 => String::new(),
+        n => format!(", medians of {n} rounds"),
+    };
     lines.push(format!(
-        "{} meshes in both: {:.2} s then, {:.2} s now, {:.2}x",
+        "{} meshes in both{of_rounds}: {:.2} s then, {:.2} s now, {:.2}x",
         lines.len() - 1,
         then_total / 1e3,
         now_total / 1e3,
@@ -285,9 +317,20 @@ pub fn compare(rows: &[BenchRow], earlier: &Value) -> Result<String, String> {
     Ok(lines.join("\n"))
 }
 
+/// The middle value, or the mean of the middle two.
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => f64::NAN,
+        _ if n % 2 == 1 => values[n / 2],
+        _ => 0.5 * (values[n / 2 - 1] + values[n / 2]),
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{BenchRow, EXPOSURE_STAGES, compare, figures, judge, stage_sum, summary};
+    use super::{BenchRow, EXPOSURE_STAGES, compare, figures, judge, side_by_side, stage_sum, summary};
     use crate::cook::{STAGES, Timings, cook};
     use crate::mesh::shapes::torus;
 
@@ -331,6 +374,33 @@ mod tests {
             "{summary}"
         );
         assert!(!summary.contains("eval"), "{summary}");
+    }
+
+    #[test]
+    fn side_by_side_gives_the_ratio_of_the_medians_and_the_median_of_the_rounds_ratios() {
+        let run = |ms: f64| {
+            serde_json::json!([{"mesh": "m", "report": {
+                "cook_ms": ms,
+                "timings_ms": {"quads": ms},
+                "quality": {"coverage": 0.5, "false_pixels_non_below": 0},
+                "occluder": {"triangles": 12},
+            }}])
+        };
+        let (then, now) = ([10.0, 40.0, 30.0].map(run), [5.0, 10.0, 20.0].map(run));
+        let table = side_by_side(&then, &now).expect("compares");
+        let row: Vec<&str> = table
+            .lines()
+            .find(|l| l.starts_with("m "))
+            .expect("a row")
+            .split_whitespace()
+            .collect();
+        // Medians 30 and 10; the rounds' ratios 2, 4 and 1.5.
+        assert_eq!(row[1..5], ["30.0", "10.0", "3.00x", "2.00x"], "{table}");
+        assert!(
+            table.ends_with("1 meshes in both, medians of 3 rounds: 0.03 s then, 0.01 s now, 3.00x"),
+            "{table}"
+        );
+        assert!(side_by_side(&[], &now).is_err());
     }
 
     #[test]

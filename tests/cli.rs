@@ -110,3 +110,58 @@ fn errors_are_one_line_and_name_the_problem() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn bench_against_another_build_times_both_in_alternating_rounds() {
+    let dir = workdir("cli-bench-against");
+    let corpus = dir.join("corpus");
+    std::fs::create_dir_all(&corpus).unwrap();
+    write_cube_obj(&corpus);
+    let json = dir.join("bench.json");
+    let (corpus, json_path) = (corpus.to_str().unwrap(), json.to_str().unwrap());
+    let itself = env!("CARGO_BIN_EXE_occluder-cook");
+    let (ok, stdout, stderr) = run(&[
+        "bench",
+        "--corpus",
+        corpus,
+        "--json",
+        json_path,
+        "--device",
+        "cpu",
+        "--set",
+        "cook.resolution=32",
+        "--against",
+        itself,
+        "--rounds",
+        "2",
+    ]);
+    assert!(ok, "{stderr}");
+    let row: Vec<&str> = stdout
+        .lines()
+        .find(|l| l.starts_with("cube.obj"))
+        .unwrap_or_else(|| panic!("no row for the cube: {stdout}"))
+        .split_whitespace()
+        .collect();
+    // Median ms under each, their ratio and the median of the rounds' ratios; one build, so the
+    // same coverage and triangles on both sides.
+    assert!(
+        row[1].parse::<f64>().unwrap() > 0.0 && row[2].parse::<f64>().unwrap() > 0.0,
+        "{stdout}"
+    );
+    assert!(row[3].ends_with('x') && row[4].ends_with('x'), "{stdout}");
+    assert_eq!((row[5], row[8]), (row[7], row[10]), "{stdout}");
+    assert!(stdout.contains("1 meshes in both, medians of 2 rounds"), "{stdout}");
+    for name in ["old.1", "old.2", "new.1", "new.2"] {
+        let path = dir.join("bench.rounds").join(format!("{name}.json"));
+        let rows: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        // The settings reached both: a grid of 32 voxels along the longest side, and a border.
+        let dims = &rows[0]["report"]["grid"]["dims"];
+        let longest = (0..3).map(|k| dims[k].as_u64().unwrap()).max().unwrap();
+        assert!((32..=34).contains(&longest), "{name}: {dims}");
+    }
+    let (ok, _, stderr) = run(&["bench", "--corpus", corpus, "--against", "/nonexistent/occluder-cook"]);
+    assert!(!ok);
+    assert!(stderr.contains("cannot run /nonexistent/occluder-cook"), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

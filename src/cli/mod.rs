@@ -78,7 +78,19 @@ impl SettingsArgs {
         Ok(config::load(self.config.as_deref(), &overrides)?)
     }
 
-    /// The flags and `--set`s as `key=value` pairs, in order.
+    /// The same settings as flags another build of this program takes: `--config` and a `--set`
+    /// for each of [`SettingsArgs::overrides`], its value as TOML writes it.
+    pub fn as_flags(&self) -> Result<Vec<std::ffi::OsString>> {
+        let mut flags = Vec::new();
+        if let Some(config) = &self.config {
+            flags.extend(["--config".into(), config.clone().into_os_string()]);
+        }
+        for (key, value) in self.overrides()? {
+            flags.extend(["--set".into(), format!("{key}={value}").into()]);
+        }
+        Ok(flags)
+    }
+
     /// The overrides that travel with a job as query parameters: those of `sections` (`cook`,
     /// `level`) but the server's own limits. The server checks them again.
     pub fn job_query(&self, sections: &[&str]) -> Result<Vec<(String, String)>> {
@@ -91,6 +103,7 @@ impl SettingsArgs {
             .collect())
     }
 
+    /// The flags and `--set`s as `key=value` pairs, in order.
     pub fn overrides(&self) -> Result<Vec<(String, toml::Value)>> {
         let mut overrides = Vec::new();
         let mut flag = |key: &str, value: Option<toml::Value>| {

@@ -89,8 +89,9 @@ fn side_by_side(old: &Path, rounds: u32, corpus: &Path, settings: &SettingsArgs,
     std::fs::create_dir_all(&folder).with_context(|| format!("cannot create {}", folder.display()))?;
     let flags = settings.as_flags()?;
     let builds = [("old", old), ("new", new.as_path())];
-    // A build from before --judge-views judges at its eval's views, outside the cook's time.
-    let skips_judging = [takes_judge_views(old)?, true];
+    // Which builds take --judge-views, to skip the judging with 0; one from before the flag
+    // judges at its eval's views, outside the cook's time.
+    let has_judge_views = [takes_judge_views(old)?, true];
     let mut runs: [Vec<Value>; 2] = Default::default();
     let bar = occluder_cook::service::client::count_bar("rounds");
     bar.set_length(u64::from(rounds) * 2);
@@ -107,7 +108,7 @@ fn side_by_side(old: &Path, rounds: u32, corpus: &Path, settings: &SettingsArgs,
                 .arg("--json")
                 .arg(&out)
                 .args(&flags);
-            if skips_judging[side] {
+            if has_judge_views[side] {
                 command.args(["--judge-views", "0"]);
             }
             let ran = command

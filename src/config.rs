@@ -109,6 +109,9 @@ pub struct CookSettings {
     pub min_box_voxels: usize,
     pub max_triangles: usize,
     pub min_silhouette_gain: f64,
+    /// At the end, a chosen piece that later ones left with fewer pixels of its own than this
+    /// share of the silhouette is dropped.
+    pub min_silhouette_own: f64,
     pub refine: bool,
     pub shapes: Vec<Shape>,
     pub quad_grid: usize,
@@ -293,6 +296,7 @@ fn validate(s: &Settings) -> Result<(), ConfigError> {
     check("cook.min_box_voxels", c.min_box_voxels as f64, 1.0, 1e12)?;
     check("cook.max_triangles", c.max_triangles as f64, 0.0, 1e9)?;
     check("cook.min_silhouette_gain", c.min_silhouette_gain, 0.0, 1.0)?;
+    check("cook.min_silhouette_own", c.min_silhouette_own, 0.0, 1.0)?;
     check("cook.quad_grid", c.quad_grid as f64, 8.0, 4096.0)?;
     check("cook.min_patch_area", c.min_patch_area, 0.0, 1.0)?;
     check("cook.surface_enough", c.surface_enough, 0.0, 1.0)?;

@@ -733,7 +733,7 @@ fn select_pieces(
         boxes,
         &sheets,
         cook.max_triangles,
-        cook.min_silhouette_gain,
+        (cook.min_silhouette_gain, cook.min_silhouette_own),
     );
     let whole_triangles: usize = pieces.iter().map(|p| p.triangles.len()).sum();
     let missed = 1.0 - selection.covered;

@@ -7,7 +7,7 @@ use crate::mesh::Mesh;
 use rayon::slice::ParallelSliceMut;
 
 /// Bumped whenever the pipeline's output for the same input and settings can change.
-pub const PIPELINE_VERSION: &str = "occluder-cook/pipeline/7";
+pub const PIPELINE_VERSION: &str = "occluder-cook/pipeline/8";
 
 pub fn cache_key(mesh: &Mesh, settings: &CookSettings) -> String {
     let bits = |t: usize| mesh.corners(t).map(|p| p.to_array().map(f32::to_bits));

@@ -63,13 +63,14 @@ impl Silhouettes {
 }
 
 /// Candidates are the boxes, then the sheets (double-sided pieces: panels and surface pieces,
-/// each costing its triangles): index `i` is a box below `boxes.len()`.
+/// each costing its triangles): index `i` is a box below `boxes.len()`. A piece enters when it
+/// adds `min_gain` of the silhouette, and stays if it still has `min_own` of its own at the end.
 pub fn select(
     silhouettes: &Silhouettes,
     boxes: &[WorldBox],
     sheets: &[Mesh],
     max_triangles: usize,
-    min_gain: f64,
+    (min_gain, min_own): (f64, f64),
 ) -> Selection {
     if boxes.is_empty() && sheets.is_empty() {
         return Selection {
@@ -123,12 +124,7 @@ pub fn select(
         chosen: Vec::new(),
         solid: Mesh::default(),
     };
-    for round in 1.. {
-        state.fill();
-        if round == PRUNE_ROUNDS || !state.prune() {
-            break;
-        }
-    }
+    state.choose((min_own * total as f64).ceil() as u64);
     let total = total.max(1) as f64;
     let covered = state.covered().iter().map(|w| f64::from(w.count_ones())).sum::<f64>() / total;
     Selection {
@@ -386,9 +382,10 @@ impl State<'_> {
         best
     }
 
-    /// Drops pieces that later ones made redundant (no pixel of their own), so that a later
-    /// fill can spend their triangles. Whether any went.
-    fn prune(&mut self) -> bool {
+    /// Drops pieces that later ones left with fewer than `least` pixels of their own, the
+    /// fewest first (the earliest chosen of those as few), each drop giving the others back the
+    /// pixels they shared with it. Whether any went.
+    fn prune(&mut self, least: u64) -> bool {
         let mut keep = vec![true; self.chosen.len()];
         let (mut once, mut more) = (vec![0u64; self.words], vec![0u64; self.words]);
         loop {
@@ -402,15 +399,17 @@ impl State<'_> {
                     once[w] = (once[w] ^ word) & !more[w];
                 }
             }
-            let own = |k: usize| {
+            let own = |k: usize| -> u64 {
                 self.masks[self.chosen[k].0]
                     .iter()
-                    .any(|&(w, word)| word & once[w as usize] != 0)
+                    .map(|&(w, word)| u64::from((word & once[w as usize]).count_ones()))
+                    .sum()
             };
-            let Some(k) = (0..self.chosen.len()).find(|&k| keep[k] && !own(k)) else {
-                break;
-            };
-            keep[k] = false;
+            let fewest = (0..self.chosen.len()).filter(|&k| keep[k]).map(|k| (own(k), k)).min();
+            match fewest {
+                Some((pixels, k)) if pixels < least => keep[k] = false,
+                _ => break,
+            }
         }
         if keep.iter().all(|&k| k) {
             return false;
@@ -423,11 +422,112 @@ impl State<'_> {
         self.solid = merge(&self.boxes_with(None));
         true
     }
+
+    /// Fills the budget, drops what later pieces made redundant and fills again, a few rounds;
+    /// then drops, with nothing to take their place, the pieces left with fewer than `least_own`
+    /// pixels of their own: what they add no longer pays for their triangles.
+    fn choose(&mut self, least_own: u64) {
+        for round in 1.. {
+            self.fill();
+            if round == PRUNE_ROUNDS || !self.prune(1) {
+                break;
+            }
+        }
+        self.prune(least_own);
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `count` masks over `words` words, each a run of fewer than `longest` words from a random
+    /// first, their bits from `bits`.
+    fn random_masks(
+        rng: &mut fastrand::Rng,
+        [count, words, longest]: [usize; 3],
+        bits: impl Fn(&mut fastrand::Rng) -> u64,
+    ) -> Vec<SparseMask> {
+        (0..count)
+            .map(|_| {
+                let first = rng.usize(0..words);
+                let run = first..words.min(first + rng.usize(1..longest));
+                run.map(|w| (w as u32, bits(rng))).collect()
+            })
+            .collect()
+    }
+
+    /// A selection state over sheets alone, of two triangles each, with `masks` chosen in order.
+    fn sheets_chosen<'a>(masks: &'a [SparseMask], costs: &'a [usize], words: usize) -> State<'a> {
+        State {
+            boxes: &[],
+            masks,
+            costs,
+            words,
+            threshold: 1.0,
+            max_triangles: 256,
+            chosen: masks.iter().enumerate().map(|(i, _)| (i, 0)).collect(),
+            solid: Mesh::default(),
+        }
+    }
+
+    #[test]
+    fn pruning_drops_the_piece_with_fewest_pixels_of_its_own_first_and_counts_again() {
+        // A: words 0-1; B: word 2 and ten bits of word 3; C: words 1-2. A has word 0 alone, B
+        // ten bits, C none. Dropping C first gives B word 2 back; dropping B, as the first
+        // chosen under 20, would have left C none of its own as well.
+        let masks: Vec<SparseMask> = vec![
+            vec![(0, u64::MAX), (1, u64::MAX)],
+            vec![(2, u64::MAX), (3, 0x3ff)],
+            vec![(1, u64::MAX), (2, u64::MAX)],
+        ];
+        let costs = [2; 3];
+        let mut state = sheets_chosen(&masks, &costs, 4);
+        assert!(state.prune(20));
+        assert_eq!(state.chosen.iter().map(|c| c.0).collect::<Vec<_>>(), [0, 1]);
+        // Each has at least 20 of its own now: nothing more goes.
+        assert!(!state.prune(20));
+        // Under 75, B goes (74 of its own); then A, alone, has all 128 of its pixels.
+        assert!(state.prune(75));
+        assert_eq!(state.chosen.iter().map(|c| c.0).collect::<Vec<_>>(), [0]);
+    }
+
+    #[test]
+    fn every_piece_chosen_keeps_the_least_of_its_own_and_the_budget_holds() {
+        let mut rng = fastrand::Rng::with_seed(5);
+        let words = 32;
+        let mut dropped = 0;
+        for _ in 0..60 {
+            let count = rng.usize(10..60);
+            let masks = random_masks(&mut rng, [count, words, 10], |rng| rng.u64(..) & rng.u64(..));
+            let costs: Vec<usize> = (0..count).map(|_| rng.usize(1..5) * 2).collect();
+            let least = rng.u64(10..80);
+            let mut state = sheets_chosen(&masks, &costs, words);
+            state.chosen.clear();
+            state.max_triangles = rng.usize(10..80);
+            state.threshold = rng.usize(1..20) as f64;
+            state.fill();
+            let filled = state.chosen.len();
+            state.prune(least);
+            dropped += filled - state.chosen.len();
+            assert!(state.triangles() <= state.max_triangles);
+            for (k, c) in state.chosen.iter().enumerate() {
+                let others: Vec<u64> = (0..words)
+                    .map(|w| {
+                        let at = |i: usize| masks[i].iter().filter(|m| m.0 as usize == w).fold(0, |a, m| a | m.1);
+                        let chosen = state.chosen.iter().enumerate().filter(|&(j, _)| j != k);
+                        chosen.fold(0, |a, (_, o)| a | at(o.0))
+                    })
+                    .collect();
+                let own: u64 = masks[c.0]
+                    .iter()
+                    .map(|&(w, bits)| u64::from((bits & !others[w as usize]).count_ones()))
+                    .sum();
+                assert!(own >= least, "a piece kept with {own} of its own, under {least}");
+            }
+        }
+        assert!(dropped > 100, "{dropped} pieces dropped");
+    }
 
     #[test]
     fn the_boxes_weighed_lazily_are_those_that_weighing_all_ranks_first() {
@@ -436,14 +536,9 @@ mod tests {
         for _ in 0..50 {
             let count = rng.usize(1..60);
             // Overlapping masks, many with equal gains, so that ties to the lower index count.
-            let masks: Vec<SparseMask> = (0..count)
-                .map(|_| {
-                    let first = rng.usize(0..words);
-                    (first..words.min(first + rng.usize(1..12)))
-                        .map(|w| (w as u32, [u64::MAX, 0xff, rng.u64(..)][rng.usize(0..3)]))
-                        .collect()
-                })
-                .collect();
+            let masks = random_masks(&mut rng, [count, words, 12], |rng| {
+                [u64::MAX, 0xff, rng.u64(..)][rng.usize(0..3)]
+            });
             let boxes = vec![
                 WorldBox {
                     lo: [0.0; 3],

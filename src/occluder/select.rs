@@ -457,7 +457,7 @@ mod tests {
             .collect()
     }
 
-    /// A selection state over sheets alone, of two triangles each, with `masks` chosen in order.
+    /// A selection state over sheets alone, costing `costs`, with `masks` all chosen in order.
     fn sheets_chosen<'a>(masks: &'a [SparseMask], costs: &'a [usize], words: usize) -> State<'a> {
         State {
             boxes: &[],
@@ -474,8 +474,8 @@ mod tests {
     #[test]
     fn pruning_drops_the_piece_with_fewest_pixels_of_its_own_first_and_counts_again() {
         // A: words 0-1; B: word 2 and ten bits of word 3; C: words 1-2. A has word 0 alone, B
-        // ten bits, C none. Dropping C first gives B word 2 back; dropping B, as the first
-        // chosen under 20, would have left C none of its own as well.
+        // ten bits, C none. Dropping C first gives B word 2 back; the first chosen under 20,
+        // B, would have gone instead, and C kept.
         let masks: Vec<SparseMask> = vec![
             vec![(0, u64::MAX), (1, u64::MAX)],
             vec![(2, u64::MAX), (3, 0x3ff)],

@@ -1034,7 +1034,7 @@ impl<'a> Run<'a> {
         let empty = occluder.triangles() == 0;
         if empty {
             self.notes
-                .push("the occluder is empty: no piece added enough silhouette within the triangle budget".into());
+                .push("the occluder is empty: no piece added enough silhouette within the triangle budget, or kept enough of its own".into());
         }
         if no_inner_voxels || empty {
             self.note_stray_vertex(mesh);

@@ -414,12 +414,21 @@ impl State<'_> {
         if keep.iter().all(|&k| k) {
             return false;
         }
+        // The solid changes only where a box went.
+        let first_sheet = self.boxes.len();
+        let box_dropped = self
+            .chosen
+            .iter()
+            .zip(&keep)
+            .any(|(c, &kept)| !kept && c.0 < first_sheet);
         let mut k = 0;
         self.chosen.retain(|_| {
             k += 1;
             keep[k - 1]
         });
-        self.solid = merge(&self.boxes_with(None));
+        if box_dropped {
+            self.solid = merge(&self.boxes_with(None));
+        }
         true
     }
 
